@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# arm_sim: the two commands of the README.
+#   ./run.sh demo   -- set up the venv (if needed) and run the demo
+#   ./run.sh test   -- set up the venv (if needed) and run ruff + the whole test suite
+#   ./run.sh setup  -- only set up
+# Set-up is idempotent: it reinstalls only when constraints.txt, setup.py, setup.cfg or
+# package.xml changed. The venv lives in .venv (override with ARM_SIM_VENV).
+set -euo pipefail
+cd "$(dirname "$0")"
+VENV=${ARM_SIM_VENV:-.venv}
+PYTHON=${PYTHON:-python3}
+
+setup() {
+  if [ ! -x "$VENV/bin/python" ]; then
+    echo "[setup] creating $VENV with $($PYTHON --version)"
+    "$PYTHON" -m venv "$VENV"
+  fi
+  local stamp want
+  stamp="$VENV/.arm_sim-setup"
+  want=$(cat constraints.txt setup.py setup.cfg package.xml | sha256sum | cut -d' ' -f1)
+  if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+    echo "[setup] installing ROS 2 Jazzy wheels, numpy, scipy, mcap and test tools (pinned)"
+    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check \
+      -c constraints.txt -e '.[ros,core,test]' 2>&1 | grep -v '^WARNING: Location' || true
+    "$VENV/bin/python" -c 'import rclpy, numpy, scipy, mcap' \
+      || { echo "[setup] failed: the venv cannot import rclpy/numpy/scipy/mcap" >&2; exit 1; }
+    echo "$want" > "$stamp"
+  fi
+}
+
+cmd=${1:-demo}
+shift || true
+case "$cmd" in
+  setup) setup ;;
+  demo)
+    setup
+    exec "$VENV/bin/arm-sim" demo "$@" ;;
+  test)
+    setup
+    echo "[test] ruff"
+    "$VENV/bin/ruff" check .
+    echo "[test] pytest"
+    exec "$VENV/bin/python" -m pytest "$@" ;;
+  *) echo "usage: ./run.sh demo|test|setup [args]" >&2; exit 2 ;;
+esac
