@@ -1,0 +1,107 @@
+"""The lecture's single link driven through a gear box (ratio n:1).
+
+Motor angle ``theta_m = n theta_l``. Kinetic energy ``(Jm + Jl/n^2) theta_m'^2 / 2``,
+potential energy ``M g l (1 - cos theta_l)`` (theta_l = 0 hanging straight down), viscous
+damping on both sides of the gear. Lagrange gives, on the motor side::
+
+    J theta_m'' + B theta_m' + C sin(theta_m / n) = u
+    J = Jm + Jl/n^2,   B = Bm + Bl/n^2,   C = M g l / n
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from arm_dynamics._validate import finite_scalar
+from arm_dynamics.integrate import rk4_step
+
+
+def _arr(name: str, x: object) -> np.ndarray:
+    arr = np.asarray(x, dtype=float)
+    if not np.isfinite(arr).all():
+        raise ValueError(f'{name} must be finite, got {x!r}')
+    return arr
+
+
+@dataclass(frozen=True)
+class SingleLinkGeared:
+    """One link behind an n:1 gear box, seen from the motor shaft.
+
+    Parameters
+    ----------
+    motor_inertia : Jm, kg m^2, > 0
+    load_inertia : Jl, kg m^2, >= 0 (the link about the joint axis)
+    motor_damping : Bm, N m s/rad, >= 0
+    load_damping : Bl, N m s/rad, >= 0
+    gear_ratio : n, dimensionless, > 0 (motor turns per link turn)
+    mass : M, kg, >= 0
+    length : l, m, >= 0 (joint axis to the link's centre of gravity)
+    gravity : g, m/s^2, >= 0
+    """
+
+    motor_inertia: float = 0.005
+    load_inertia: float = 1.0
+    motor_damping: float = 0.01
+    load_damping: float = 0.5
+    gear_ratio: float = 50.0
+    mass: float = 2.0
+    length: float = 0.5
+    gravity: float = 9.81
+    n_dof: int = field(default=1, init=False)
+
+    def __post_init__(self) -> None:
+        for name in ('motor_inertia', 'gear_ratio'):
+            object.__setattr__(self, name, finite_scalar(name, getattr(self, name),
+                                                         minimum=0.0, strict=True))
+        for name in ('load_inertia', 'motor_damping', 'load_damping', 'mass', 'length',
+                     'gravity'):
+            object.__setattr__(self, name, finite_scalar(name, getattr(self, name),
+                                                         minimum=0.0))
+
+    @property
+    def inertia(self) -> float:
+        """J = Jm + Jl/n^2, kg m^2 (load inertia reflected to the motor)."""
+        return self.motor_inertia + self.load_inertia / self.gear_ratio**2
+
+    @property
+    def damping(self) -> float:
+        """B = Bm + Bl/n^2, N m s/rad."""
+        return self.motor_damping + self.load_damping / self.gear_ratio**2
+
+    @property
+    def gravity_coefficient(self) -> float:
+        """C = M g l / n, N m."""
+        return self.mass * self.gravity * self.length / self.gear_ratio
+
+    def forward_dynamics(self, theta_m, theta_m_dot, u) -> np.ndarray:
+        """Motor acceleration [rad/s^2] from motor angle [rad], speed [rad/s], torque [N m]."""
+        th, thd, u = _arr('theta_m', theta_m), _arr('theta_m_dot', theta_m_dot), _arr('u', u)
+        return (u - self.damping * thd
+                - self.gravity_coefficient * np.sin(th / self.gear_ratio)) / self.inertia
+
+    def inverse_dynamics(self, theta_m, theta_m_dot, theta_m_ddot) -> np.ndarray:
+        """Motor torque u [N m] producing the given motor acceleration [rad/s^2]."""
+        th, thd = _arr('theta_m', theta_m), _arr('theta_m_dot', theta_m_dot)
+        thdd = _arr('theta_m_ddot', theta_m_ddot)
+        return (self.inertia * thdd + self.damping * thd
+                + self.gravity_coefficient * np.sin(th / self.gear_ratio))
+
+    def energy(self, theta_m, theta_m_dot) -> tuple[np.ndarray, np.ndarray]:
+        """(kinetic, potential) energy [J]; potential is zero hanging straight down."""
+        th, thd = _arr('theta_m', theta_m), _arr('theta_m_dot', theta_m_dot)
+        return (0.5 * self.inertia * thd**2,
+                self.mass * self.gravity * self.length * (1.0 - np.cos(th / self.gear_ratio)))
+
+    def small_oscillation_period(self) -> float:
+        """Period [s] of small undamped swings about hanging down: 2 pi sqrt(J n / C)."""
+        return 2.0 * np.pi * np.sqrt(self.inertia * self.gear_ratio / self.gravity_coefficient)
+
+    def step(self, q, qd, tau, dt: float, n_steps: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """Advance ``n_steps`` RK4 steps of ``dt`` [s] holding the motor torque ``tau``."""
+        dt = finite_scalar('dt', dt, minimum=0.0, strict=True)
+        q, qd, tau = _arr('q', q), _arr('qd', qd), _arr('tau', tau)
+        for _ in range(n_steps):
+            q, qd = rk4_step(self.forward_dynamics, q, qd, tau, dt)
+        return q, qd
