@@ -1,0 +1,157 @@
+"""The simulator's state machine, free of ROS: what the ``simulator`` node steps.
+
+:class:`SimulatorCore` owns the model state and simulated time (integer nanoseconds, so
+time never drifts), holds the last valid effort command, saturates it at the effort
+limits, integrates one control period at a time with fixed RK4 physics steps, and refuses
+to let the state become non-finite or absurd (divergence stops integration and keeps the
+last good state until :meth:`reset`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from arm_dynamics.geared_link import SingleLinkGeared
+from arm_dynamics.integrate import Model
+from arm_dynamics.two_link import TwoLinkArm
+
+
+class CommandError(ValueError):
+    """An effort command that must not reach the physics; the message says why."""
+
+
+def validate_command(data: Sequence[float], n: int) -> np.ndarray:
+    """Return the command as a float array of length ``n`` or raise :class:`CommandError`."""
+    if len(data) != n:
+        raise CommandError(f'effort command must have {n} values, got {len(data)}')
+    values = np.array(data, dtype=float)
+    bad = [i for i, v in enumerate(values) if not math.isfinite(v)]
+    if bad:
+        raise CommandError(f'effort command has non-finite values at index {bad}: '
+                           f'{list(values)}')
+    return values
+
+
+@dataclass(frozen=True)
+class JointView:
+    """How a model's state appears in a JointState message."""
+
+    names: tuple[str, ...]
+    position: list[float]
+    velocity: list[float]
+    effort: list[float]
+
+
+class SimulatorCore:
+    """Fixed-step simulation of one model under a held, saturated torque command.
+
+    Parameters
+    ----------
+    model : TwoLinkArm or SingleLinkGeared
+    q0, qd0 : (n,) rad, rad/s -- initial (and reset) state.
+    effort_limits : (n,) N m, > 0 -- the applied torque is clipped to +-limits.
+    physics_step_ns : int, ns > 0 -- RK4 step.
+    control_period_ns : int, ns -- a whole multiple of the physics step; one
+        :meth:`advance` moves simulated time by this much.
+    velocity_limit : rad/s -- any |qd| above it (or a non-finite state) counts as
+        divergence.
+    joint_names : names for :meth:`joint_view`.
+    """
+
+    def __init__(self, model: Model, *, q0, qd0, effort_limits, physics_step_ns: int,
+                 control_period_ns: int, velocity_limit: float,
+                 joint_names: Sequence[str]) -> None:
+        n = model.n_dof
+        if physics_step_ns <= 0 or control_period_ns % physics_step_ns:
+            raise ValueError(
+                f'control period {control_period_ns} ns must be a whole multiple of the '
+                f'physics step {physics_step_ns} ns')
+        self.model = model
+        self.n = n
+        self.q0 = np.array(q0, dtype=float).reshape(n)
+        self.qd0 = np.array(qd0, dtype=float).reshape(n)
+        self.limits = np.array(effort_limits, dtype=float).reshape(n)
+        self.dt = physics_step_ns * 1e-9
+        self.substeps = control_period_ns // physics_step_ns
+        self.period_ns = control_period_ns
+        self.velocity_limit = velocity_limit
+        self.joint_names = tuple(joint_names)
+        self.time_ns = 0
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to the initial state, zero torque, divergence cleared (time keeps going)."""
+        self.q = self.q0.copy()
+        self.qd = self.qd0.copy()
+        self.command = np.zeros(self.n)
+        self.applied = np.zeros(self.n)
+        self.diverged: str | None = None
+
+    def set_command(self, data: Sequence[float]) -> None:
+        """Hold a new effort command [N m]; raises :class:`CommandError` and keeps the old
+        one if it is malformed."""
+        self.command = validate_command(data, self.n)
+
+    def clear_command(self) -> None:
+        """Zero torque (command timeout)."""
+        self.command = np.zeros(self.n)
+
+    @property
+    def saturated(self) -> np.ndarray:
+        """Per joint: is the held command beyond the effort limit?"""
+        return np.abs(self.command) > self.limits
+
+    @property
+    def time(self) -> float:
+        """Simulated time [s]."""
+        return self.time_ns * 1e-9
+
+    def advance(self) -> None:
+        """Integrate one control period with the held, saturated command."""
+        self.time_ns += self.period_ns
+        if self.diverged:
+            self.applied = np.zeros(self.n)
+            return
+        self.applied = np.clip(self.command, -self.limits, self.limits)
+        with np.errstate(all='ignore'):
+            q, qd = self.model.step(self.q, self.qd, self.applied, self.dt, self.substeps)
+        speed = float(np.max(np.abs(qd))) if np.isfinite(qd).all() else math.inf
+        if not (np.isfinite(q).all() and speed <= self.velocity_limit):
+            self.diverged = (f'integration diverged at t={self.time:.3f} s '
+                             f'(|qd| = {speed:.3g} rad/s > {self.velocity_limit:g} or '
+                             'non-finite); holding the last good state until reset')
+            self.applied = np.zeros(self.n)
+            return
+        self.q, self.qd = q, qd
+
+    def joint_view(self) -> JointView:
+        """Positions [rad], velocities [rad/s] and applied efforts [N m] to publish.
+
+        The geared link shows the motor shaft (``<joint>_motor``) and the link
+        (``<joint>``, motor quantities divided by the gear ratio, torque multiplied).
+        """
+        q, qd, tau = self.q.tolist(), self.qd.tolist(), self.applied.tolist()
+        if isinstance(self.model, SingleLinkGeared):
+            n = self.model.gear_ratio
+            j = self.joint_names[0]
+            return JointView((f'{j}_motor', j), [q[0], q[0] / n], [qd[0], qd[0] / n],
+                             [tau[0], tau[0] * n])
+        return JointView(self.joint_names[: self.n], q, qd, tau)
+
+
+def make_model(kind: str, robot: dict, geared: dict) -> Model:
+    """Build the simulated model from node parameters (``two_link`` or ``single_link_geared``).
+
+    Raises ValueError naming the parameter if the physics refuses it.
+    """
+    if kind == 'two_link':
+        return TwoLinkArm(**{k: robot[k] for k in (
+            'link_lengths', 'com_distances', 'link_masses', 'link_inertias', 'gravity',
+            'joint_damping')})
+    if kind == 'single_link_geared':
+        return SingleLinkGeared(**geared)
+    raise ValueError(f"model must be 'two_link' or 'single_link_geared', got {kind!r}")

@@ -1,0 +1,129 @@
+"""Start and stop arm_sim node processes (no rclpy): used by ``arm-sim`` and the tests.
+
+An executable is found the way ``ros2 run`` finds it (``<prefix>/lib/arm_sim/<exe>`` via
+the ament index) when arm_sim is installed in a ROS workspace, else as the console script
+next to this Python (a pip venv), else as ``python -m <module>``.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+MODULES = {
+    'simulator': 'arm_dynamics.simulator_node',
+    'controller': 'arm_control.controller_node',
+    'planner': 'arm_planner.planner_node',
+    'recorder': 'arm_bag.recorder_node',
+}
+
+
+def executable(name: str) -> list[str]:
+    """Command line that starts node executable ``name``."""
+    for prefix in filter(None, os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep)):
+        exe = Path(prefix) / 'lib' / 'arm_sim' / name
+        if exe.is_file() and os.access(exe, os.X_OK):
+            return [str(exe)]
+    exe = Path(sys.executable).parent / name
+    if exe.is_file() and os.access(exe, os.X_OK):
+        return [str(exe)]
+    return [sys.executable, '-m', MODULES[name]]
+
+
+def config_file() -> Path:
+    """The shipped ``config/arm.yaml``: from the install's share/ or the source tree."""
+    candidates = [Path(p) / 'share' / 'arm_sim' / 'config' / 'arm.yaml'
+                  for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
+    candidates += [Path(sys.prefix) / 'share' / 'arm_sim' / 'config' / 'arm.yaml',
+                   Path(__file__).resolve().parents[1] / 'config' / 'arm.yaml']
+    for c in candidates:
+        if c.is_file():
+            return c
+    raise FileNotFoundError('config/arm.yaml not found; looked in: '
+                            + ', '.join(str(c) for c in candidates))
+
+
+def node_env(domain_id: int | None = None, localhost: bool = True) -> dict[str, str]:
+    """Environment for a node process.
+
+    Drops the ROS wheels' bootstrap guard so a child of another venv's process re-resolves
+    its own libraries (see NOTES-ROS-WHEELS.md), and pins the DDS domain.
+    """
+    env = dict(os.environ)
+    if env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None) is not None:
+        env.pop('LD_LIBRARY_PATH', None)
+    if domain_id is not None:
+        env['ROS_DOMAIN_ID'] = str(domain_id)
+    if localhost:
+        env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env.setdefault('PYTHONUNBUFFERED', '1')
+    return env
+
+
+class NodeProcess:
+    """One node as a child process, its output in ``log_path``."""
+
+    def __init__(self, name: str, *, params: dict | None = None,
+                 params_file: str | Path | None = None, namespace: str | None = None,
+                 remaps: dict[str, str] | None = None, domain_id: int | None = None,
+                 log_path: str | Path | None = None, extra_args: list[str] | None = None):
+        self.name = name
+        ros_args = []
+        if params_file:
+            ros_args += ['--params-file', str(params_file)]
+        for key, value in (params or {}).items():
+            ros_args += ['-p', f'{key}:={_ros_value(value)}']
+        if namespace:
+            ros_args += ['-r', f'__ns:={namespace}']
+        for src, dst in (remaps or {}).items():
+            ros_args += ['-r', f'{src}:={dst}']
+        self.cmd = executable(name) + (extra_args or []) + (
+            ['--ros-args', *ros_args] if ros_args else [])
+        self.log_path = Path(log_path) if log_path else None
+        out = open(self.log_path, 'wb') if self.log_path else subprocess.DEVNULL
+        self.proc = subprocess.Popen(self.cmd, env=node_env(domain_id), stdout=out,
+                                     stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+        if out is not subprocess.DEVNULL:
+            out.close()
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def stop(self, sig: int = signal.SIGINT, timeout: float = 10.0) -> int:
+        """Send ``sig``, wait up to ``timeout`` s, then kill; returns the exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        return self.proc.returncode
+
+    def output(self) -> str:
+        return self.log_path.read_text(errors='replace') if self.log_path else ''
+
+
+def _ros_value(value: object) -> str:
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, (list, tuple)):
+        return '[' + ','.join(_ros_value(v) for v in value) + ']'
+    if isinstance(value, float):
+        text = repr(value)  # YAML needs a dot in '1.0e-06', not '1e-06'
+        return text.replace('e', '.0e', 1) if 'e' in text and '.' not in text else text
+    return str(value)
+
+
+def wait_until(predicate, timeout: float, poll: float = 0.05) -> bool:
+    """Poll ``predicate`` until it is true or ``timeout`` s pass (for process-level waits)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(poll)
+    return bool(predicate())

@@ -1,0 +1,164 @@
+"""rclpy helpers shared by the arm_sim nodes: parameters from specs, diagnostics, main().
+
+Only node modules import this; the maths stays in the ROS-free packages.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from arm_sim.params import ParamSpec
+from arm_sim.throttle import Throttle
+
+LEVELS = {'OK': DiagnosticStatus.OK, 'WARN': DiagnosticStatus.WARN,
+          'ERROR': DiagnosticStatus.ERROR, 'STALE': DiagnosticStatus.STALE}
+
+
+class ConfigError(Exception):
+    """A node's start-up parameters are refused; the message gives every reason."""
+
+
+def steady_clock() -> Clock:
+    """A wall clock for timers that must run whatever ``use_sim_time`` says."""
+    return Clock(clock_type=ClockType.STEADY_TIME)
+
+
+def declare_parameters(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]:
+    """Declare ``specs`` on ``node`` (overrides from ``--ros-args`` and params files apply)
+    and return their values; raise :class:`ConfigError` listing every refused value."""
+    values, reasons = {}, []
+    for spec in specs:
+        desc = ParameterDescriptor(name=spec.name, description=spec.doc(),
+                                   read_only=spec.read_only, dynamic_typing=True)
+        value = node.declare_parameter(spec.name, spec.default, desc).value
+        reason = spec.check(value)
+        if reason:
+            reasons.append(reason)
+        values[spec.name] = value
+    if reasons:
+        raise ConfigError('; '.join(reasons))
+    return values
+
+
+def on_parameter_changes(node: Node, specs: Iterable[ParamSpec],
+                         validate: Callable[[dict[str, Any]], str | None],
+                         apply: Callable[[dict[str, Any]], None]) -> None:
+    """Validate run-time parameter changes against ``specs`` (then ``validate``, which sees
+    the changed values and may refuse with a reason), and ``apply`` accepted ones."""
+    table = {s.name: s for s in specs}
+
+    def check(params: list[Parameter]) -> SetParametersResult:
+        changed = {}
+        for p in params:
+            spec = table.get(p.name)
+            if spec is None:
+                continue
+            reason = spec.check(p.value)
+            if reason:
+                return SetParametersResult(successful=False, reason=reason)
+            changed[p.name] = p.value
+        reason = validate(changed) if changed else None
+        return SetParametersResult(successful=reason is None, reason=reason or '')
+
+    def after(params: list[Parameter]) -> None:
+        changed = {p.name: p.value for p in params if p.name in table}
+        if changed:
+            apply(changed)
+
+    node.add_on_set_parameters_callback(check)
+    node.add_post_set_parameters_callback(after)
+
+
+class Diagnostics:
+    """One DiagnosticStatus for a node on ``/diagnostics``: a summary published every
+    second, and rejected input reported at once (throttled per kind, with counts)."""
+
+    def __init__(self, node: Node, period: float = 1.0) -> None:
+        self.node = node
+        self.pub = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.name = node.get_fully_qualified_name()
+        self.level = 'OK'
+        self.message = 'starting'
+        self.values: dict[str, Any] = {}
+        self.counts: dict[str, int] = {}
+        self.last_problem: dict[str, str] = {}
+        self.throttle = Throttle(period)
+        node.create_timer(period, self.publish, clock=steady_clock())
+
+    def set(self, level: str, message: str, **values: Any) -> None:
+        """Set the summary (published with the next periodic report)."""
+        self.level, self.message = level, message
+        self.values.update(values)
+
+    def problem(self, kind: str, reason: str, level: str = 'WARN') -> None:
+        """Report rejected input or a fault now: log + /diagnostics, at most once a second
+        per ``kind``; every occurrence is counted."""
+        self.counts[kind] = self.counts.get(kind, 0) + 1
+        self.last_problem[kind] = reason
+        if self.throttle.ready(kind):
+            held = self.throttle.take_suppressed(kind)
+            more = f' ({held} more since last report)' if held else ''
+            log = self.node.get_logger()
+            (log.error if level == 'ERROR' else log.warning)(f'{reason}{more}')
+            self.publish(extra=(level, f'{kind}: {reason}'))
+
+    def publish(self, extra: tuple[str, str] | None = None) -> None:
+        level, message = extra or (self.level, self.message)
+        kv = [KeyValue(key=k, value=str(v)) for k, v in self.values.items()]
+        kv += [KeyValue(key=f'{k}_count', value=str(v)) for k, v in self.counts.items()]
+        kv += [KeyValue(key=f'{k}_last', value=v) for k, v in self.last_problem.items()]
+        status = DiagnosticStatus(level=LEVELS[level], name=self.name, message=message,
+                                  hardware_id='arm_sim', values=kv)
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        self.pub.publish(msg)
+
+
+def print_help(prog: str, summary: str, specs: Iterable[ParamSpec]) -> None:
+    """``--help`` for a node executable: what it does and every parameter with its unit."""
+    print(f'usage: {prog} [--ros-args -p NAME:=VALUE ... --params-file FILE -r FROM:=TO]\n')
+    print(summary.strip() + '\n\nparameters:')
+    for s in specs:
+        print(f'  {s.name} (default {s.default!r})\n      {s.doc()}')
+
+
+def run_node(factory: Callable[[], Node], *, prog: str, summary: str,
+             specs: Iterable[ParamSpec], args: list[str] | None = None,
+             spin: Callable[[SingleThreadedExecutor, Node], None] | None = None) -> int:
+    """Jazzy-style main: init, spin until Ctrl-C / SIGTERM / shutdown, destroy, shutdown.
+
+    Refused start-up parameters print one line and return 2.
+    """
+    argv = sys.argv[1:] if args is None else args
+    own = argv[:argv.index('--ros-args')] if '--ros-args' in argv else argv
+    if '-h' in own or '--help' in own:
+        print_help(prog, summary, specs)
+        return 0
+    rclpy.init(args=[prog, *argv])
+    node = None
+    code = 0
+    try:
+        node = factory()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        (spin or (lambda ex, _n: ex.spin()))(executor, node)
+    except ConfigError as exc:
+        print(f'{prog}: refused parameters: {exc}', file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code

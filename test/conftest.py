@@ -1,0 +1,126 @@
+"""Fixtures for topic-level tests: real node processes on a private ROS domain.
+
+Every test session gets its own ``ROS_DOMAIN_ID`` (from the process id, or
+``ARM_SIM_TEST_DOMAIN``) with localhost-only discovery, so parallel sessions and other
+machines never see each other. The test process talks to the nodes through its own rclpy
+node; waits spin the executor until a condition holds (no fixed sleeps).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+DOMAIN_ID = int(os.environ.get('ARM_SIM_TEST_DOMAIN', 100 + os.getpid() % 100))
+os.environ['ROS_DOMAIN_ID'] = str(DOMAIN_ID)
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+
+
+class Ros:
+    """The test's own ROS node: subscribe, publish, call services, wait for conditions."""
+
+    def __init__(self) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=DOMAIN_ID)
+        self.node = rclpy.create_node('arm_sim_test', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._entities: list = []
+
+    def collect(self, msg_type, topic: str, qos: int = 100) -> list:
+        """Subscribe ``topic``; returns the list every received message is appended to."""
+        received: list = []
+        self._entities.append(self.node.create_subscription(
+            msg_type, topic, received.append, qos))
+        return received
+
+    def publisher(self, msg_type, topic: str, qos: int = 10):
+        pub = self.node.create_publisher(msg_type, topic, qos)
+        self._entities.append(pub)
+        return pub
+
+    def wait_for(self, condition: Callable[[], object], timeout: float = 10.0,
+                 what: str = 'condition') -> object:
+        """Spin until ``condition()`` is truthy; fail the test after ``timeout`` s."""
+        end = time.monotonic() + timeout
+        while True:
+            value = condition()
+            if value:
+                return value
+            if time.monotonic() > end:
+                pytest.fail(f'timed out after {timeout:g} s waiting for {what}')
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def call(self, srv_type, name: str, request, timeout: float = 10.0):
+        client = self.node.create_client(srv_type, name)
+        try:
+            self.wait_for(lambda: client.service_is_ready(), timeout, f'service {name}')
+            future = client.call_async(request)
+            self.wait_for(future.done, timeout, f'reply from {name}')
+            return future.result()
+        finally:
+            self.node.destroy_client(client)
+
+    def reset(self) -> None:
+        for entity in self._entities:
+            if hasattr(entity, 'topic_name') and hasattr(entity, 'handle'):
+                if entity in self.node.subscriptions:
+                    self.node.destroy_subscription(entity)
+                elif entity in self.node.publishers:
+                    self.node.destroy_publisher(entity)
+        self._entities.clear()
+
+    def shutdown(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.rclpy.shutdown(context=self.context)
+
+
+@pytest.fixture(scope='session')
+def ros_session():
+    ros = Ros()
+    yield ros
+    ros.shutdown()
+
+
+@pytest.fixture
+def ros(ros_session):
+    yield ros_session
+    ros_session.reset()
+
+
+@pytest.fixture
+def launch(tmp_path: Path):
+    """Start node processes for one test: ``launch('simulator', params={...})``.
+
+    All are stopped with SIGINT at the end of the test (and must exit cleanly); a node
+    that died early or failed to stop shows its log in the failure.
+    """
+    from arm_sim.launcher import NodeProcess
+
+    procs: list[NodeProcess] = []
+
+    def start(name: str, **kwargs) -> NodeProcess:
+        log = tmp_path / f'{name}-{len(procs)}.log'
+        proc = NodeProcess(name, domain_id=DOMAIN_ID, log_path=log, **kwargs)
+        procs.append(proc)
+        return proc
+
+    yield start
+    problems = []
+    for proc in procs:
+        was_alive = proc.alive()
+        code = proc.stop(signal.SIGINT)
+        if was_alive and code not in (0, -signal.SIGINT):
+            problems.append(f'{proc.name} exited {code} on SIGINT:\n{proc.output()[-3000:]}')
+    if problems:
+        pytest.fail('\n'.join(problems))

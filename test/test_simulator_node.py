@@ -1,0 +1,172 @@
+"""Topic-level tests of the ``simulator`` node (a real process on a private domain)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from scipy.integrate import solve_ivp
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
+
+from arm_dynamics import TwoLinkArm
+
+ARM = TwoLinkArm()  # the node's defaults are the contract's arm
+
+
+def stamp(msg: JointState) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+def command(values) -> Float64MultiArray:
+    return Float64MultiArray(data=[float(v) for v in values])
+
+
+def diag_messages(diags: list, node: str = '/simulator') -> list[str]:
+    return [f'{s.message} {[(kv.key, kv.value) for kv in s.values]}'
+            for d in diags for s in d.status if s.name == node]
+
+
+def test_lockstep_motion_under_constant_torque_matches_solve_ivp(ros, launch):
+    q0, tau = [-0.4, 1.2], [12.0, -3.0]
+    launch('simulator', params={'timing_mode': 'lockstep', 'initial_positions': q0})
+    states = ros.collect(JointState, 'joint_states')
+    pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
+    ros.wait_for(lambda: states, what='first joint state')
+    answered = set()
+
+    def drive():
+        # Answer every new state once (lockstep: one command advances one period).
+        last = states[-1]
+        if stamp(last) not in answered:
+            answered.add(stamp(last))
+            pub.publish(command(tau))
+        return stamp(last) >= 1.5 - 1e-9
+
+    ros.wait_for(drive, timeout=60, what='1.5 s of simulated time')
+    first = {stamp(m): m for m in states}
+    times = np.array(sorted(first))
+    assert times[0] == 0.0 and np.allclose(np.diff(times), 0.01), 'one state per 10 ms period'
+    q = np.array([first[t].position for t in times])
+    ref = solve_ivp(lambda _t, x: np.concatenate([x[2:], ARM.forward_dynamics(
+        x[:2], x[2:], tau)]), (0, times[-1]), [*q0, 0.0, 0.0], method='DOP853',
+        rtol=1e-12, atol=1e-12, t_eval=times)
+    err = np.abs(q - ref.y[:2].T).max()
+    assert err < 1e-6, f'published motion deviates from solve_ivp by {err:.2e} rad'
+    assert np.ptp(q[:, 0]) > 0.1, 'the torque really moved the arm'
+    assert all(m.effort == pytest.approx(tau) for m in states[1:]), 'effort = applied torque'
+    assert list(states[0].name) == ['joint1', 'joint2']
+
+
+def test_lockstep_advances_only_on_commands(ros, launch):
+    launch('simulator', params={'timing_mode': 'lockstep'})
+    states = ros.collect(JointState, 'joint_states')
+    pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
+    # Heartbeats re-send t=0 while no command comes: several states, time stands still.
+    ros.wait_for(lambda: len(states) >= 3, what='three heartbeat states')
+    assert {stamp(m) for m in states} == {0.0}
+    for k in range(1, 4):
+        pub.publish(command([0.0, 0.0]))
+        ros.wait_for(lambda: any(stamp(m) > 0.01 * (k - 0.5) for m in states),
+                     what=f'state after command {k}')
+        assert max(stamp(m) for m in states) == pytest.approx(0.01 * k, abs=1e-12)
+
+
+def test_bad_commands_are_refused_and_node_keeps_publishing(ros, launch):
+    launch('simulator', params={'timing_mode': 'real_time', 'command_timeout': 0.0})
+    states = ros.collect(JointState, 'joint_states')
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
+    ros.wait_for(lambda: states, what='first joint state')
+    good = [5.0, 1.0]
+    pub.publish(command(good))
+    ros.wait_for(lambda: states[-1].effort == pytest.approx(good), what='good command applied')
+    bad_inputs = {'non-finite': [math.nan, 1.0], 'infinite': [math.inf, 0.0],
+                  'too short': [1.0], 'too long': [1.0, 2.0, 3.0]}
+    for label, data in bad_inputs.items():
+        diags.clear()
+        pub.publish(Float64MultiArray(data=data))
+        ros.wait_for(lambda: any('rejected_command' in m for m in diag_messages(diags)),
+                     what=f'/diagnostics report of the {label} command')
+        n = len(states)
+        ros.wait_for(lambda: len(states) > n + 3, what='states after the bad command')
+        last = states[-1]
+        assert last.effort == pytest.approx(good), f'{label}: last good command kept'
+        assert np.isfinite(last.position).all() and np.isfinite(last.velocity).all()
+
+
+def test_effort_is_saturated_at_the_limits(ros, launch):
+    launch('simulator', params={'timing_mode': 'lockstep', 'effort_limits': [60.0, 20.0]})
+    states = ros.collect(JointState, 'joint_states')
+    pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
+    ros.wait_for(lambda: states, what='first joint state')
+    pub.publish(command([500.0, -100.0]))
+    ros.wait_for(lambda: stamp(states[-1]) > 0, what='one step')
+    assert list(states[-1].effort) == [60.0, -20.0]
+
+
+def test_command_timeout_sets_torque_to_zero_and_reports(ros, launch):
+    launch('simulator', params={'timing_mode': 'real_time', 'command_timeout': 0.3})
+    states = ros.collect(JointState, 'joint_states')
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
+    ros.wait_for(lambda: states, what='first joint state')
+    pub.publish(command([10.0, 2.0]))
+    ros.wait_for(lambda: states[-1].effort == pytest.approx([10.0, 2.0]), what='command')
+    ros.wait_for(lambda: list(states[-1].effort) == [0.0, 0.0], timeout=5,
+                 what='zero torque after the timeout')
+    ros.wait_for(lambda: any('command_timeout' in m for m in diag_messages(diags)),
+                 what='timeout on /diagnostics')
+
+
+def test_reset_restores_the_initial_state(ros, launch):
+    q0 = [0.3, -0.7]
+    launch('simulator', params={'timing_mode': 'real_time', 'initial_positions': q0})
+    states = ros.collect(JointState, 'joint_states')
+    ros.wait_for(lambda: states and abs(states[-1].position[0] - q0[0]) > 0.2,
+                 what='the arm to fall away from q0')
+    reply = ros.call(Trigger, '/simulator/reset', Trigger.Request())
+    assert reply.success, reply.message
+    n = len(states)
+    ros.wait_for(lambda: len(states) > n, what='a state after reset')
+    after_reset = [m for m in states[n - 1:] if m.position == pytest.approx(q0, abs=1e-12)]
+    assert after_reset, 'a state at exactly q0 was published after reset'
+    assert list(after_reset[0].velocity) == [0.0, 0.0]
+    assert stamp(after_reset[0]) > 0, 'simulated time keeps running through a reset'
+
+
+def test_divergence_stops_integration_and_holds_last_good_state(ros, launch):
+    # A feather-light arm with huge effort limits: full torque sends it past velocity_limit.
+    launch('simulator', params={'timing_mode': 'lockstep', 'link_masses': [1e-3, 1e-3],
+                                'link_inertias': [1e-6, 1e-6], 'effort_limits': [1e6, 1e6],
+                                'velocity_limit': 100.0})
+    states = ros.collect(JointState, 'joint_states')
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
+    ros.wait_for(lambda: states, what='first joint state')
+    for k in range(1, 4):
+        pub.publish(command([1e6, -1e6]))
+        ros.wait_for(lambda: stamp(states[-1]) >= 0.01 * k - 1e-9, what=f'step {k}')
+    ros.wait_for(lambda: any('diverged' in m for m in diag_messages(diags)),
+                 what='divergence reported')
+    held = states[-1]
+    assert np.isfinite(held.position).all() and np.abs(held.velocity).max() <= 100.0
+    assert list(held.effort) == [0.0, 0.0], 'no torque applied while diverged'
+    assert held.position == states[-2].position, 'last good state is held'
+    reply = ros.call(Trigger, '/simulator/reset', Trigger.Request())
+    assert reply.success
+    ros.wait_for(lambda: states[-1].position == pytest.approx([-0.4, 1.2]),
+                 what='reset state published')
+
+
+def test_bad_parameters_are_refused_with_the_reason(tmp_path):
+    from arm_sim.launcher import NodeProcess
+    proc = NodeProcess('simulator', params={'link_masses': [0.0, 1.0],
+                                            'publish_rate': 300.0},
+                       log_path=tmp_path / 'sim.log', domain_id=0)
+    assert proc.proc.wait(30) == 2
+    out = proc.output()
+    assert 'link_masses must be > 0 kg' in out and 'Traceback' not in out
