@@ -2,6 +2,9 @@
 
 from arm_dynamics.geared_link import SingleLinkGeared
 from arm_dynamics.integrate import SimResult, rk4_step, simulate
+from arm_dynamics.lagrange import LagrangianSystem, planar_chain
+from arm_dynamics.newton_euler import rnea
 from arm_dynamics.two_link import TwoLinkArm
 
-__all__ = ['SimResult', 'SingleLinkGeared', 'TwoLinkArm', 'rk4_step', 'simulate']
+__all__ = ['LagrangianSystem', 'SimResult', 'SingleLinkGeared', 'TwoLinkArm', 'planar_chain',
+           'rk4_step', 'rnea', 'simulate']

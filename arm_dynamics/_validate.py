@@ -43,6 +43,13 @@ def finite_tuple(name: str, value: object, size: int, *, minimum: float | None =
                  for i, v in enumerate(value))
 
 
+def step_count(name: str, value: object) -> int:
+    """Return ``value`` as an int >= 1 (a number of integration steps)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f'{name} must be an integer >= 1, got {value!r}')
+    return int(value)
+
+
 def state_array(name: str, value: object, size: int) -> np.ndarray:
     """Return ``value`` as a float array of shape ``(..., size)`` with finite entries."""
     try:

@@ -14,12 +14,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from arm_dynamics._validate import finite_scalar
+from arm_dynamics._validate import finite_scalar, step_count
 from arm_dynamics.integrate import rk4_step
 
 
 def _arr(name: str, x: object) -> np.ndarray:
-    arr = np.asarray(x, dtype=float)
+    try:
+        arr = np.asarray(x, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f'{name} must be numeric, got {x!r}') from None
     if not np.isfinite(arr).all():
         raise ValueError(f'{name} must be finite, got {x!r}')
     return arr
@@ -95,13 +98,19 @@ class SingleLinkGeared:
                 self.mass * self.gravity * self.length * (1.0 - np.cos(th / self.gear_ratio)))
 
     def small_oscillation_period(self) -> float:
-        """Period [s] of small undamped swings about hanging down: 2 pi sqrt(J n / C)."""
+        """Period [s] of small undamped swings about hanging down: 2 pi sqrt(J n / C)
+        (infinite without gravity torque, C = 0)."""
+        if self.gravity_coefficient == 0.0:
+            return float('inf')
         return 2.0 * np.pi * np.sqrt(self.inertia * self.gear_ratio / self.gravity_coefficient)
 
     def step(self, q, qd, tau, dt: float, n_steps: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """Advance ``n_steps`` RK4 steps of ``dt`` [s] holding the motor torque ``tau``."""
         dt = finite_scalar('dt', dt, minimum=0.0, strict=True)
+        n_steps = step_count('n_steps', n_steps)
         q, qd, tau = _arr('q', q), _arr('qd', qd), _arr('tau', tau)
+        if not q.shape == qd.shape == np.broadcast_shapes(q.shape, tau.shape):
+            raise ValueError(f'q, qd and tau shapes differ: {q.shape}, {qd.shape}, {tau.shape}')
         for _ in range(n_steps):
             q, qd = rk4_step(self.forward_dynamics, q, qd, tau, dt)
         return q, qd

@@ -97,9 +97,13 @@ def simulate(*, model: Model, q0, qd0, torque: TorqueLaw | np.ndarray | list | t
     if hold < 1 or abs(hold * dt - period) > 1e-9 * period:
         raise ValueError(f'control_period must be a whole multiple of dt={dt}, got {period}')
     steps = round(duration / dt)
+    if steps < 1:
+        raise ValueError(f'duration must be at least dt={dt}, got {duration}')
     if method not in ('rk4', 'solve_ivp'):
         raise ValueError(f"method must be 'rk4' or 'solve_ivp', got {method!r}")
     limits = None if effort_limits is None else state_array('effort_limits', effort_limits, n)
+    if limits is not None and (limits < 0).any():
+        raise ValueError(f'effort_limits must be >= 0, got {limits.tolist()}')
     if callable(torque):
         law = torque
     else:
@@ -138,4 +142,6 @@ def _reference_interval(model: Model, q: np.ndarray, qd: np.ndarray, tau: np.nda
 
     sol = solve_ivp(rhs, (0.0, dt), np.concatenate([q, qd]), method='DOP853', rtol=rtol,
                     atol=atol)
+    if not sol.success:
+        raise RuntimeError(f'solve_ivp failed: {sol.message}')
     return sol.y[:n, -1], sol.y[n:, -1]

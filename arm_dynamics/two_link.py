@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from arm_dynamics._validate import finite_scalar, finite_tuple, state_array
+from arm_dynamics._validate import finite_scalar, finite_tuple, state_array, step_count
 
 Pair = tuple[float, float]
 
@@ -190,6 +190,7 @@ class TwoLinkArm:
         Works on one state (2,) or a batch (..., 2); the batch form runs many arms at once.
         """
         dt = finite_scalar('dt', dt, minimum=0.0, strict=True)
+        n_steps = step_count('n_steps', n_steps)
         s = (_pair('q', q), _pair('qd', qd), _pair('tau', tau))
         if None not in s:
             try:

@@ -1,0 +1,505 @@
+"""Dynamics test suite: three independent derivations of the arm's equations must agree.
+
+* closed form -- :class:`arm_dynamics.TwoLinkArm` (hand-derived 2-link formulas);
+* Christoffel route -- :func:`arm_dynamics.lagrange.planar_chain` (generic n-link ``D(q)``
+  and ``PE(q)``, everything else by complex-step differentiation and Christoffel symbols);
+* Newton-Euler -- :func:`arm_dynamics.newton_euler.rnea` (force/moment balance, no D, no C).
+
+Plus integration accuracy (energy drift, RK4 against a tight DOP853 reference), the lecture's
+spring-mass and geared-link examples, argument checking and batching. Every tolerance is
+stated in the assertion message. Runtime is a few seconds.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from arm_dynamics import SingleLinkGeared, TwoLinkArm, simulate
+from arm_dynamics.lagrange import (
+    LagrangianSystem,
+    geared_link_lagrangian,
+    planar_chain,
+    spring_mass,
+)
+from arm_dynamics.newton_euler import NewtonEulerChain, rnea
+
+AGREE = 1e-10          # relative agreement between derivations (to max(1, |reference|))
+N_PARAM_SETS = 100     # random parameter sets ...
+N_STATES_PER_SET = 3   # ... times states per set = 300 random (parameters, state) pairs
+
+
+# ---------------------------------------------------------------------- helpers
+def random_chain_params(rng: np.random.Generator, n: int) -> dict:
+    """A physically plausible random parameter set for an n-link planar chain."""
+    lengths = rng.uniform(0.2, 2.0, n)
+    masses = rng.uniform(0.1, 10.0, n)
+    return {
+        'link_lengths': tuple(lengths),
+        'com_distances': tuple(lengths * rng.uniform(0.0, 1.0, n)),
+        'link_masses': tuple(masses),
+        'link_inertias': tuple(masses * lengths**2 * rng.uniform(0.01, 0.2, n)),
+        'gravity': float(rng.uniform(0.0, 20.0)),
+        'joint_damping': tuple(rng.uniform(0.0, 2.0, n)),
+    }
+
+
+def random_state(rng: np.random.Generator, n: int) -> tuple[np.ndarray, ...]:
+    """(q, qd, qdd, tau): rad, rad/s, rad/s^2, N m."""
+    return (rng.uniform(-np.pi, np.pi, n), rng.uniform(-5.0, 5.0, n),
+            rng.uniform(-20.0, 20.0, n), rng.uniform(-50.0, 50.0, n))
+
+
+def rel_err(a, b) -> float:
+    """|a - b| relative to the scale of b, floored at 1 (so tiny references compare absolutely)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    return float(np.linalg.norm(a - b) / max(1.0, np.linalg.norm(b)))
+
+
+def ne_terms(params: dict, q: np.ndarray, qd: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """D, C qd and g recovered from Newton-Euler alone (it never forms them itself).
+
+    D column j = rnea(q, 0, e_j) without gravity or damping; C qd = rnea(q, qd, 0) without
+    gravity or damping; g = rnea(q, 0, 0) without damping.
+    """
+    n = len(q)
+    bare = dict(params, gravity=0.0, joint_damping=(0.0,) * n)
+    eye = np.eye(n)
+    d = rnea(np.broadcast_to(q, (n, n)), np.zeros((n, n)), eye, **bare).T
+    cqd = rnea(q, qd, np.zeros(n), **bare)
+    g = rnea(q, np.zeros(n), np.zeros(n), **dict(params, joint_damping=(0.0,) * n))
+    return d, cqd, g
+
+
+def zero_crossing_period(t: np.ndarray, x: np.ndarray) -> float:
+    """Period from the zero crossings of x(t) (linear interpolation; every crossing is half
+    a period apart). Needs at least three crossings."""
+    idx = np.nonzero(np.sign(x[:-1]) * np.sign(x[1:]) < 0)[0]
+    assert len(idx) >= 3, f'need >= 3 zero crossings, got {len(idx)}'
+    tc = t[idx] - x[idx] * (t[idx + 1] - t[idx]) / (x[idx + 1] - x[idx])
+    return 2.0 * (tc[-1] - tc[0]) / (len(tc) - 1)
+
+
+# ---------------------------------------------------------------------- three derivations
+def test_closed_form_christoffel_and_newton_euler_agree_at_random_states_and_parameters():
+    rng = np.random.default_rng(20240601)
+    worst = {'tau': 0.0, 'd': 0.0, 'c': 0.0, 'cqd': 0.0, 'g': 0.0, 'qdd': 0.0}
+    for _ in range(N_PARAM_SETS):
+        params = random_chain_params(rng, 2)
+        arm = TwoLinkArm(**params)
+        chain = planar_chain(**params)
+        for _ in range(N_STATES_PER_SET):
+            q, qd, qdd, tau = random_state(rng, 2)
+            tau_cf = arm.inverse_dynamics(q, qd, qdd)
+            d_cf, c_cf, g_cf = arm.mass_matrix(q), arm.coriolis_matrix(q, qd), \
+                arm.gravity_vector(q)
+            d_ne, cqd_ne, g_ne = ne_terms(params, q, qd)
+            checks = {
+                'tau': [(chain.inverse_dynamics(q, qd, qdd), tau_cf),
+                        (rnea(q, qd, qdd, **params), tau_cf)],
+                'd': [(chain.mass_matrix(q), d_cf), (d_ne, d_cf)],
+                'c': [(chain.coriolis_matrix(q, qd), c_cf)],
+                'cqd': [(chain.coriolis_matrix(q, qd) @ qd, c_cf @ qd), (cqd_ne, c_cf @ qd)],
+                'g': [(chain.gravity_vector(q), g_cf), (g_ne, g_cf)],
+            }
+            qdd_cf = arm.forward_dynamics(q, qd, tau)
+            checks['qdd'] = [(chain.forward_dynamics(q, qd, tau), qdd_cf)]
+            # Newton-Euler has no forward dynamics: it must return tau from the closed
+            # form's acceleration (error measured in torque units).
+            checks['tau'].append((rnea(q, qd, qdd_cf, **params), tau))
+            for name, pairs in checks.items():
+                for a, b in pairs:
+                    worst[name] = max(worst[name], rel_err(a, b))
+    for name, err in worst.items():
+        assert err < AGREE, f'{name}: worst relative disagreement {err:.2e} >= {AGREE:g}'
+
+
+def test_closed_form_matches_newton_euler_batched_at_random_states():
+    rng = np.random.default_rng(7)
+    params = random_chain_params(rng, 2)
+    arm = TwoLinkArm(**params)
+    q, qd, qdd = (rng.uniform(-4, 4, (500, 2)) for _ in range(3))
+    tau_cf = arm.inverse_dynamics(q, qd, qdd)
+    tau_ne = rnea(q, qd, qdd, **params)
+    scale = np.maximum(1.0, np.linalg.norm(tau_cf, axis=-1))
+    err = float((np.linalg.norm(tau_ne - tau_cf, axis=-1) / scale).max())
+    assert err < AGREE, f'batched closed form vs Newton-Euler: {err:.2e} >= {AGREE:g} relative'
+
+
+def test_three_link_chain_christoffel_route_matches_newton_euler():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        params = random_chain_params(rng, 3)
+        chain = planar_chain(**params)
+        for _ in range(5):
+            q, qd, qdd, tau = random_state(rng, 3)
+            tau_ne = rnea(q, qd, qdd, **params)
+            err = rel_err(chain.inverse_dynamics(q, qd, qdd), tau_ne)
+            assert err < AGREE, f'n=3 inverse dynamics: {err:.2e} >= {AGREE:g} relative'
+            d_ne, cqd_ne, g_ne = ne_terms(params, q, qd)
+            assert rel_err(chain.mass_matrix(q), d_ne) < AGREE, f'n=3 D (tol {AGREE:g})'
+            assert rel_err(chain.coriolis_matrix(q, qd) @ qd, cqd_ne) < AGREE, \
+                f'n=3 C qd (tol {AGREE:g})'
+            assert rel_err(chain.gravity_vector(q), g_ne) < AGREE, f'n=3 g (tol {AGREE:g})'
+            qdd_chain = chain.forward_dynamics(q, qd, tau)
+            err = rel_err(rnea(q, qd, qdd_chain, **params), tau)
+            assert err < AGREE, f'n=3 forward/inverse round trip: {err:.2e} >= {AGREE:g}'
+
+
+def test_one_link_chain_is_the_damped_pendulum():
+    rng = np.random.default_rng(11)
+    m, lc, inertia, g0, b = 3.0, 0.4, 0.05, 9.81, 0.2
+    chain = planar_chain((1.0,), (lc,), (m,), (inertia,), g0, (b,))
+    for _ in range(50):
+        q, qd, qdd, _ = random_state(rng, 1)
+        expected = (m * lc**2 + inertia) * qdd + m * g0 * lc * np.cos(q) + b * qd
+        assert rel_err(chain.inverse_dynamics(q, qd, qdd), expected) < AGREE, \
+            f'1-link chain vs pendulum formula (tol {AGREE:g})'
+        assert rel_err(rnea(q, qd, qdd, link_lengths=(1.0,), com_distances=(lc,),
+                            link_masses=(m,), link_inertias=(inertia,), gravity=g0,
+                            joint_damping=(b,)), expected) < AGREE, \
+            f'1-link Newton-Euler vs pendulum formula (tol {AGREE:g})'
+
+
+# ---------------------------------------------------------------------- structure of D, C
+def test_mass_matrix_is_symmetric_positive_definite_at_random_configurations():
+    rng = np.random.default_rng(5)
+    for _ in range(40):
+        params = random_chain_params(rng, 2)
+        arm = TwoLinkArm(**params)
+        q = rng.uniform(-np.pi, np.pi, (25, 2))
+        d = arm.mass_matrix(q)
+        assert np.array_equal(d, np.swapaxes(d, -1, -2)), 'D must be exactly symmetric'
+        eig = np.linalg.eigvalsh(d)
+        assert (eig[:, 0] > 1e-9 * eig[:, 1]).all(), \
+            'D must be positive definite (smallest eigenvalue > 1e-9 x largest)'
+    chain = planar_chain(**random_chain_params(rng, 4))
+    for q in rng.uniform(-np.pi, np.pi, (20, 4)):
+        d = chain.mass_matrix(q)
+        assert np.allclose(d, d.T, rtol=0, atol=1e-14 * np.abs(d).max()), \
+            'n=4 chain D symmetric to 1e-14 relative'
+        assert np.linalg.eigvalsh(d)[0] > 0.0, 'n=4 chain D positive definite'
+
+
+def test_d_dot_minus_two_c_is_skew_symmetric_for_the_closed_form():
+    # D' = sum_k dD/dq_k qd_k by a central difference of TwoLinkArm.mass_matrix along qd:
+    # step h = 1e-6 s gives truncation ~1e-12 and round-off ~1e-10 of |D| |qd|, so the
+    # tolerance is 1e-8 relative to max(1, |D| |qd|).
+    rng = np.random.default_rng(6)
+    h = 1e-6
+    for _ in range(40):
+        arm = TwoLinkArm(**random_chain_params(rng, 2))
+        for _ in range(5):
+            q, qd, _, _ = random_state(rng, 2)
+            d_dot = (arm.mass_matrix(q + h * qd) - arm.mass_matrix(q - h * qd)) / (2 * h)
+            n_mat = d_dot - 2.0 * arm.coriolis_matrix(q, qd)
+            scale = max(1.0, np.abs(arm.mass_matrix(q)).max() * np.abs(qd).max())
+            assert np.abs(n_mat + n_mat.T).max() < 1e-8 * scale, \
+                'closed form: D_dot - 2C not skew to 1e-8 relative'
+            # Passivity consequence: x^T (D_dot - 2C) x = 0 for any x.
+            x = rng.normal(size=2)
+            assert abs(x @ n_mat @ x) < 1e-8 * scale * (x @ x), 'x^T (D_dot - 2C) x != 0'
+
+
+def test_d_dot_minus_two_c_is_skew_symmetric_for_the_christoffel_route():
+    # Here D' comes from the complex-step dD/dq (exact), so the tolerance is 1e-12.
+    rng = np.random.default_rng(8)
+    for n in (2, 3, 4):
+        chain = planar_chain(**random_chain_params(rng, n))
+        for _ in range(10):
+            q, qd, _, _ = random_state(rng, n)
+            d_dot = np.einsum('kij,k->ij', chain.mass_matrix_derivatives(q), qd)
+            n_mat = d_dot - 2.0 * chain.coriolis_matrix(q, qd)
+            scale = max(1.0, np.abs(d_dot).max())
+            assert np.abs(n_mat + n_mat.T).max() < 1e-12 * scale, \
+                f'n={n}: D_dot - 2C not skew to 1e-12 relative'
+
+
+def test_complex_step_derivative_matches_central_difference():
+    # Complex step is exact; a central difference (h = 1e-6) agrees to its own error ~1e-9.
+    rng = np.random.default_rng(9)
+    chain = planar_chain(**random_chain_params(rng, 3))
+    q = rng.uniform(-np.pi, np.pi, 3)
+    dd = chain.mass_matrix_derivatives(q)
+    g = chain.gravity_vector(q)
+    h = 1e-6
+    for k in range(3):
+        e = np.zeros(3)
+        e[k] = h
+        fd = (chain.mass_matrix(q + e) - chain.mass_matrix(q - e)) / (2 * h)
+        assert np.abs(dd[k] - fd).max() < 1e-7 * max(1.0, np.abs(fd).max()), \
+            f'dD/dq_{k}: complex step vs central difference beyond 1e-7 relative'
+        fg = (chain.potential_energy(q + e) - chain.potential_energy(q - e)) / (2 * h)
+        assert abs(g[k] - fg) < 1e-7 * max(1.0, abs(fg)), \
+            f'dPE/dq_{k}: complex step vs central difference beyond 1e-7 relative'
+
+
+# ---------------------------------------------------------------------- integration
+# Released from rest horizontal (full swings, KE up to 30 J: drift ~9e-10), hanging with a
+# bend (~5e-12) and thrown from hanging (~8e-12). Releases from near upright (KE ~ 50-60 J,
+# joint speeds > 10 rad/s) reach ~1.2e-8 at 1 ms: the edge of RK4 at this step.
+@pytest.mark.parametrize('q0, qd0', [((0.0, 0.0), (0.0, 0.0)),
+                                     ((-np.pi / 2 + 0.6, 0.8), (0.0, 0.0)),
+                                     ((-np.pi / 2, 0.0), (3.0, -4.0))])
+def test_energy_is_conserved_by_rk4_over_10_s_without_torque_or_damping(q0, qd0):
+    arm = TwoLinkArm()
+    q, qd = np.array(q0), np.array(qd0)
+    e0 = sum(arm.energy(q, qd))
+    energies, kinetic = [], []
+    for _ in range(100):                       # 100 x 100 steps of 1 ms = 10 s
+        q, qd = arm.step(q, qd, (0.0, 0.0), 1e-3, 100)
+        ke, pe = arm.energy(q, qd)
+        energies.append(ke + pe)
+        kinetic.append(ke)
+    # Energy scale: |E0| or the largest kinetic energy reached (E0 can be 0 at base height).
+    scale = max(abs(e0), max(kinetic))
+    drift = float(np.abs(np.array(energies) - e0).max()) / scale
+    assert max(kinetic) > 1.0, 'the arm must actually move for this test to mean anything'
+    assert drift < 1e-8, f'energy drift {drift:.2e} >= 1e-8 relative over 10 s of RK4 at 1 ms'
+
+
+def test_energy_change_equals_damping_work_with_damping():
+    # With damping and no torque the energy decreases; RK4 at 1 ms must dissipate exactly
+    # the damping work int qd^T B qd dt (trapezoid on 0.1 ms substeps, tol 1e-6 relative).
+    arm = TwoLinkArm(joint_damping=(0.4, 0.3))
+    q, qd = np.array([0.3, 0.5]), np.zeros(2)
+    e0 = sum(arm.energy(q, qd))
+    work, p_prev = 0.0, 0.0
+    for _ in range(20000):                     # 2 s at 0.1 ms
+        q, qd = arm.step(q, qd, (0.0, 0.0), 1e-4)
+        p = float(qd @ arm.damping_torque(qd))
+        work += 0.5 * (p + p_prev) * 1e-4
+        p_prev = p
+    loss = e0 - sum(arm.energy(q, qd))
+    assert loss > 0.0, 'damping must remove energy'
+    assert abs(loss - work) < 1e-6 * max(1.0, work), \
+        f'energy lost {loss:.9f} J vs damping work {work:.9f} J (tol 1e-6 relative)'
+
+
+def test_rk4_matches_solve_ivp_reference_within_1e_8_rad_over_5_s_of_free_motion():
+    arm = TwoLinkArm()
+    kwargs = {'model': arm, 'q0': (-np.pi / 2 + 0.6, 0.8), 'qd0': (0.0, 0.5),
+              'torque': (0.0, 0.0), 'duration': 5.0, 'dt': 1e-3}
+    fixed = simulate(method='rk4', **kwargs)
+    reference = simulate(method='solve_ivp', rtol=1e-12, atol=1e-12, **kwargs)
+    assert np.array_equal(fixed.t, reference.t)
+    assert np.ptp(fixed.q[:, 0]) > 0.5, 'the arm must swing for this test to mean anything'
+    err = float(np.abs(fixed.q - reference.q).max())
+    assert err < 1e-8, f'RK4 (1 ms) vs DOP853 (rtol 1e-12): {err:.2e} rad >= 1e-8 rad over 5 s'
+
+
+def test_lagrangian_chain_rk4_trajectory_matches_closed_form_step():
+    # The generic machinery, integrated by the same RK4, follows the closed form (1e-10 rad).
+    params = {'link_lengths': (1.0, 0.8), 'com_distances': (0.5, 0.4),
+              'link_masses': (2.0, 1.5), 'link_inertias': (0.1, 0.08), 'gravity': 9.81,
+              'joint_damping': (0.1, 0.05)}
+    arm, chain = TwoLinkArm(**params), planar_chain(**params)
+    q0, qd0, tau = np.array([0.2, -0.4]), np.array([0.5, 1.0]), np.array([3.0, -1.0])
+    qa, qda = arm.step(q0, qd0, tau, 1e-3, 200)
+    qc, qdc = chain.step(q0, qd0, tau, 1e-3, 200)
+    assert np.abs(qa - qc).max() < 1e-10, 'q after 0.2 s: closed form vs Lagrangian, 1e-10 rad'
+    assert np.abs(qda - qdc).max() < 1e-9, 'qd after 0.2 s: closed form vs Lagrangian, 1e-9'
+
+
+# ---------------------------------------------------------------------- lecture examples
+def test_spring_mass_machinery_gives_m_xdd_plus_k_x_equals_f():
+    rng = np.random.default_rng(12)
+    for _ in range(50):
+        m, k = rng.uniform(0.1, 10.0), rng.uniform(0.0, 100.0)
+        system = spring_mass(m, k)
+        x, xd, xdd, f = rng.uniform(-2.0, 2.0, 4)
+        assert np.abs(system.christoffel_symbols([x])).max() == 0.0, 'constant D: no C terms'
+        assert rel_err(system.gravity_vector([x]), [k * x]) < 1e-14, 'dPE/dx = k x (1e-14)'
+        assert rel_err(system.inverse_dynamics([x], [xd], [xdd]), [m * xdd + k * x]) < 1e-14, \
+            'F = m x_dd + k x (tol 1e-14 relative)'
+        assert rel_err(system.forward_dynamics([x], [xd], [f]), [(f - k * x) / m]) < 1e-14, \
+            'x_dd = (F - k x)/m (tol 1e-14 relative)'
+        ke, pe = system.energy([x], [xd])
+        assert math.isclose(ke, 0.5 * m * xd**2, rel_tol=1e-14)
+        assert math.isclose(pe, 0.5 * k * x**2, rel_tol=1e-14, abs_tol=1e-300)
+
+
+def test_spring_mass_simulated_period_is_two_pi_sqrt_m_over_k():
+    m, k = 0.5, 20.0
+    period = 2.0 * np.pi * np.sqrt(m / k)          # about 0.99 s
+    run = simulate(model=spring_mass(m, k), q0=(0.1,), qd0=(0.0,), torque=(0.0,),
+                   duration=2.1 * period, dt=1e-3)
+    measured = zero_crossing_period(run.t, run.q[:, 0])
+    assert abs(measured - period) < 1e-6 * period, \
+        f'spring-mass period {measured:.9f} s vs 2 pi sqrt(m/k) = {period:.9f} s (tol 1e-6)'
+
+
+def test_geared_link_matches_its_closed_form_and_the_lagrangian_machinery():
+    rng = np.random.default_rng(13)
+    for _ in range(50):
+        p = {'motor_inertia': rng.uniform(1e-4, 1e-2), 'load_inertia': rng.uniform(0.0, 2.0),
+             'motor_damping': rng.uniform(0.0, 0.1), 'load_damping': rng.uniform(0.0, 1.0),
+             'gear_ratio': rng.uniform(1.0, 100.0), 'mass': rng.uniform(0.0, 5.0),
+             'length': rng.uniform(0.0, 1.0), 'gravity': rng.uniform(0.0, 20.0)}
+        link, lagr = SingleLinkGeared(**p), geared_link_lagrangian(**p)
+        n = p['gear_ratio']
+        big_j = p['motor_inertia'] + p['load_inertia'] / n**2
+        big_b = p['motor_damping'] + p['load_damping'] / n**2
+        big_c = p['mass'] * p['gravity'] * p['length'] / n
+        th, thd, thdd, u = rng.uniform(-100.0, 100.0), *rng.uniform(-50.0, 50.0, 3)
+        closed_u = big_j * thdd + big_b * thd + big_c * np.sin(th / n)
+        assert rel_err(link.inverse_dynamics(th, thd, thdd), closed_u) < 1e-12, \
+            'SingleLinkGeared vs J th_dd + B th_d + C sin(th/n) = u (1e-12 relative)'
+        assert rel_err(lagr.inverse_dynamics([th], [thd], [thdd]), [closed_u]) < 1e-12, \
+            'Lagrangian geared link vs closed form (1e-12 relative)'
+        closed_acc = (u - big_b * thd - big_c * np.sin(th / n)) / big_j
+        assert rel_err(link.forward_dynamics(th, thd, u), closed_acc) < 1e-12, \
+            'SingleLinkGeared forward dynamics vs closed form (1e-12 relative)'
+        assert rel_err(lagr.forward_dynamics([th], [thd], [u]), [closed_acc]) < 1e-12, \
+            'Lagrangian geared link forward dynamics vs closed form (1e-12 relative)'
+        assert rel_err(link.energy(th, thd), lagr.energy([th], [thd])) < 1e-12, \
+            'geared link (KE, PE): SingleLinkGeared vs Lagrangian (1e-12 relative)'
+        assert math.isclose(link.inertia, big_j, rel_tol=1e-14)
+        assert math.isclose(link.damping, big_b, rel_tol=1e-14)
+        assert math.isclose(link.gravity_coefficient, big_c, rel_tol=1e-14, abs_tol=1e-300)
+
+
+def test_geared_link_small_oscillation_period_is_two_pi_sqrt_j_n_over_c():
+    p = {'motor_inertia': 1e-4, 'load_inertia': 0.1, 'motor_damping': 0.0, 'load_damping': 0.0,
+         'gear_ratio': 10.0, 'mass': 2.0, 'length': 0.5, 'gravity': 9.81}
+    link = SingleLinkGeared(**p)
+    n = p['gear_ratio']
+    big_j = p['motor_inertia'] + p['load_inertia'] / n**2
+    big_c = p['mass'] * p['gravity'] * p['length'] / n
+    period = 2.0 * np.pi * np.sqrt(big_j * n / big_c)      # about 0.67 s
+    assert math.isclose(link.small_oscillation_period(), period, rel_tol=1e-14)
+    # Load amplitude 1e-3 rad: the finite-amplitude lengthening is ~theta^2/16 = 6e-8.
+    run = simulate(model=link, q0=(1e-3 * n,), qd0=(0.0,), torque=(0.0,),
+                   duration=2.1 * period, dt=1e-3)
+    measured = zero_crossing_period(run.t, run.q[:, 0])
+    assert abs(measured - period) < 1e-6 * period, \
+        f'geared-link period {measured:.9f} s vs 2 pi sqrt(J n/C) = {period:.9f} s (tol 1e-6)'
+    # The Lagrangian machinery, stepped by the same RK4, follows the same trajectory.
+    q, qd = geared_link_lagrangian(**p).step((1e-3 * n,), (0.0,), (0.0,), 1e-3, 300)
+    assert abs(q[0] - run.q[300, 0]) < 1e-12, 'geared link: Lagrangian vs closed form 1e-12 rad'
+    assert abs(qd[0] - run.qd[300, 0]) < 1e-10, 'geared link: Lagrangian vs closed form qd'
+
+
+def test_lagrangian_system_from_user_callables_derives_the_pendulum():
+    # Any analytic D(q), PE(q) works: a pendulum written by hand.
+    m, lc, g0 = 2.0, 0.7, 9.81
+    system = LagrangianSystem(lambda q: np.array([[m * lc**2]]),
+                              lambda q: -m * g0 * lc * np.cos(q[0]), n_dof=1,
+                              joint_damping=(0.1,))
+    q, qd, qdd = 0.4, -1.2, 3.0
+    expected = m * lc**2 * qdd + m * g0 * lc * np.sin(q) + 0.1 * qd
+    assert rel_err(system.inverse_dynamics([q], [qd], [qdd]), [expected]) < 1e-14, \
+        'hand-written pendulum: (tol 1e-14 relative)'
+
+
+# ---------------------------------------------------------------------- arguments, batching
+_Q, _QD, _TAU = np.array([0.1, 0.2]), np.array([0.3, 0.4]), np.array([1.0, 2.0])
+_NAN = float('nan')
+_CHAIN2 = {'link_lengths': (1.0, 0.8), 'com_distances': (0.5, 0.4), 'link_masses': (2.0, 1.5),
+           'link_inertias': (0.1, 0.08)}
+
+
+@pytest.mark.parametrize('call, name', [
+    (lambda: TwoLinkArm(link_masses=(0, 1)), 'link_masses'),
+    (lambda: TwoLinkArm(link_lengths=(1.0,)), 'link_lengths'),
+    (lambda: TwoLinkArm(com_distances=(0.5, -0.1)), 'com_distances'),
+    (lambda: TwoLinkArm(gravity=_NAN), 'gravity'),
+    (lambda: TwoLinkArm(joint_damping=(0.0, -1.0)), 'joint_damping'),
+    (lambda: TwoLinkArm(link_inertias=(0.0, 0.0), com_distances=(0.5, 0.0)), 'link_inertias'),
+    (lambda: TwoLinkArm().mass_matrix([_NAN, 0.0]), 'q'),
+    (lambda: TwoLinkArm().mass_matrix([0.0, 0.0, 0.0]), 'q'),
+    (lambda: TwoLinkArm().forward_dynamics([_NAN, 0.0], _QD, _TAU), 'q'),
+    (lambda: TwoLinkArm().forward_dynamics(_Q, [0.0, math.inf], _TAU), 'qd'),
+    (lambda: TwoLinkArm().forward_dynamics(_Q, _QD, [1.0]), 'tau'),
+    (lambda: TwoLinkArm().inverse_dynamics(_Q, _QD, 'fast'), 'qdd'),
+    (lambda: TwoLinkArm().coriolis_matrix(_Q, np.zeros(3)), 'qd'),
+    (lambda: TwoLinkArm().step(_Q, _QD, _TAU, dt=0.0), 'dt'),
+    (lambda: TwoLinkArm().energy(_Q, [_NAN, 0.0]), 'qd'),
+    (lambda: SingleLinkGeared(gear_ratio=0.0), 'gear_ratio'),
+    (lambda: SingleLinkGeared(mass=-1.0), 'mass'),
+    (lambda: SingleLinkGeared().forward_dynamics(_NAN, 0.0, 0.0), 'theta_m'),
+    (lambda: SingleLinkGeared().forward_dynamics(0.0, 0.0, _NAN), 'u'),
+    (lambda: simulate(model=TwoLinkArm(), q0=_Q, qd0=_QD, torque=_TAU, duration=1.0,
+                      method='euler'), 'method'),
+    (lambda: simulate(model=TwoLinkArm(), q0=[0.0], qd0=_QD, torque=_TAU, duration=1.0),
+     'q0'),
+    (lambda: planar_chain(**dict(_CHAIN2, com_distances=(0.5,))), 'com_distances'),
+    (lambda: planar_chain(**dict(_CHAIN2, link_masses=(1.0, -1.0))), 'link_masses'),
+    (lambda: planar_chain(**dict(_CHAIN2, link_lengths=())), 'link_lengths'),
+    (lambda: planar_chain(**_CHAIN2, gravity=-9.81), 'gravity'),
+    (lambda: planar_chain(**dict(_CHAIN2, link_inertias=(0.0, 0.0),
+                                 com_distances=(0.5, 0.0))), 'link_inertias'),
+    (lambda: planar_chain(**_CHAIN2).forward_dynamics([0.0, 0.0, 0.0], _QD, _TAU), 'q'),
+    (lambda: planar_chain(**_CHAIN2).inverse_dynamics(_Q, [_NAN, 0.0], _TAU), 'qd'),
+    (lambda: planar_chain(**_CHAIN2).forward_dynamics(_Q, _QD, np.ones((2, 2))), 'tau'),
+    (lambda: planar_chain(**_CHAIN2).coriolis_matrix(_Q, 'x'), 'qd'),
+    (lambda: LagrangianSystem('D', lambda q: 0.0, n_dof=1), 'mass_matrix'),
+    (lambda: LagrangianSystem(lambda q: np.eye(1), None, n_dof=1), 'potential'),
+    (lambda: LagrangianSystem(lambda q: np.eye(1), lambda q: 0.0, n_dof=0), 'n_dof'),
+    (lambda: LagrangianSystem(lambda q: np.eye(1), lambda q: 0.0, n_dof=1,
+                              joint_damping=(1.0, 2.0)), 'joint_damping'),
+    (lambda: LagrangianSystem(lambda q: np.eye(2), lambda q: 0.0,
+                              n_dof=1).mass_matrix([0.0]), 'mass_matrix'),
+    (lambda: LagrangianSystem(lambda q: np.eye(1), lambda q: q,
+                              n_dof=1).step([0.0], [0.0], [0.0], dt=-1.0), 'dt'),
+    (lambda: spring_mass(1.0, 1.0).step([0.0], [0.0], [0.0], 1e-3, n_steps=2.5), 'n_steps'),
+    (lambda: spring_mass(0.0, 1.0), 'mass'),
+    (lambda: spring_mass(1.0, -1.0), 'stiffness'),
+    (lambda: geared_link_lagrangian(gear_ratio=-2.0), 'gear_ratio'),
+    (lambda: rnea(_Q, _QD, [_NAN, 0.0], **_CHAIN2), 'qdd'),
+    (lambda: rnea([0.0], _QD, _TAU, **_CHAIN2), 'q'),
+    (lambda: rnea(_Q, _QD, _TAU, **dict(_CHAIN2, link_inertias=(0.1,))), 'link_inertias'),
+    (lambda: NewtonEulerChain(**_CHAIN2, joint_damping=(0.0, _NAN)), 'joint_damping'),
+])
+def test_bad_arguments_raise_value_error_naming_the_argument(call, name):
+    with pytest.raises(ValueError, match=rf'\b{name}\b'):
+        call()
+
+
+def test_batched_calls_equal_per_state_calls():
+    rng = np.random.default_rng(21)
+    arm = TwoLinkArm(joint_damping=(0.2, 0.1))
+    q, qd, x = (rng.uniform(-3.0, 3.0, (8, 2)) for _ in range(3))
+    batched = {
+        'mass_matrix': arm.mass_matrix(q),
+        'coriolis_matrix': arm.coriolis_matrix(q, qd),
+        'gravity_vector': arm.gravity_vector(q),
+        'damping_torque': arm.damping_torque(qd),
+        'forward_dynamics': arm.forward_dynamics(q, qd, x),
+        'inverse_dynamics': arm.inverse_dynamics(q, qd, x),
+        'forward_kinematics': arm.forward_kinematics(q),
+        'jacobian': arm.jacobian(q),
+        'energy': np.stack(arm.energy(q, qd), -1),
+        'step': np.concatenate(arm.step(q, qd, x, 1e-3, 10), -1),
+        'rnea': rnea(q, qd, x, **_CHAIN2, gravity=9.81),
+    }
+    for i in range(len(q)):
+        single = {
+            'mass_matrix': arm.mass_matrix(q[i]),
+            'coriolis_matrix': arm.coriolis_matrix(q[i], qd[i]),
+            'gravity_vector': arm.gravity_vector(q[i]),
+            'damping_torque': arm.damping_torque(qd[i]),
+            'forward_dynamics': arm.forward_dynamics(q[i], qd[i], x[i]),
+            'inverse_dynamics': arm.inverse_dynamics(q[i], qd[i], x[i]),
+            'forward_kinematics': arm.forward_kinematics(q[i]),
+            'jacobian': arm.jacobian(q[i]),
+            'energy': np.array(arm.energy(q[i], qd[i])),
+            'step': np.concatenate(arm.step(q[i], qd[i], x[i], 1e-3, 10)),
+            'rnea': rnea(q[i], qd[i], x[i], **_CHAIN2, gravity=9.81),
+        }
+        for name, value in single.items():
+            assert batched[name][i].shape == value.shape, f'{name}: batch row shape'
+            # Single states take a pure-float (math) path, batches numpy: equal to 1e-12.
+            np.testing.assert_allclose(batched[name][i], value, rtol=1e-12, atol=1e-12,
+                                       err_msg=f'{name}: batch row {i} vs single call')
+
+
+def test_batched_calls_broadcast_over_leading_shapes():
+    arm = TwoLinkArm()
+    q = np.zeros((3, 4, 2))
+    assert arm.mass_matrix(q).shape == (3, 4, 2, 2)
+    assert arm.forward_dynamics(q, np.zeros(2), np.zeros(2)).shape == (3, 4, 2)
+    assert rnea(q, np.zeros(2), np.zeros(2), **_CHAIN2).shape == (3, 4, 2)
