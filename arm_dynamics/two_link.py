@@ -33,8 +33,16 @@ Pair = tuple[float, float]
 
 def _pair(name: str, x: object) -> Pair | None:
     """Fast path: ``x`` as two finite floats, or None if ``x`` is not a single 2-vector."""
+    if type(x) is np.ndarray:
+        if x.shape != (2,):
+            return None
+        a, b = x.tolist()  # 3x cheaper than unpacking numpy scalars
+    else:
+        try:
+            a, b = x  # type: ignore[misc]
+        except (TypeError, ValueError):
+            return None
     try:
-        a, b = x  # type: ignore[misc]
         a = float(a)
         b = float(b)
     except (TypeError, ValueError):
