@@ -7,10 +7,12 @@ next to this Python (a pip venv), else as ``python -m <module>``.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -75,8 +77,16 @@ class NodeProcess:
         ros_args = []
         if params_file:
             ros_args += ['--params-file', str(params_file)]
-        for key, value in (params or {}).items():
-            ros_args += ['-p', f'{key}:={_ros_value(value)}']
+        if params:
+            # '-p' overrides count as '/**' entries, which a params file's '/**/<node>'
+            # section beats; a second file keyed by node name overrides both.
+            fd, path = tempfile.mkstemp(prefix=f'{name}-', suffix='.params.yaml')
+            with os.fdopen(fd, 'w') as f:
+                json.dump({f'/**/{name}': {'ros__parameters': params}}, f)  # JSON is YAML
+            self._params_path: str | None = path
+            ros_args += ['--params-file', path]
+        else:
+            self._params_path = None
         if namespace:
             ros_args += ['-r', f'__ns:={namespace}']
         for src, dst in (remaps or {}).items():
@@ -102,21 +112,13 @@ class NodeProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+        if self._params_path:
+            Path(self._params_path).unlink(missing_ok=True)
+            self._params_path = None
         return self.proc.returncode
 
     def output(self) -> str:
         return self.log_path.read_text(errors='replace') if self.log_path else ''
-
-
-def _ros_value(value: object) -> str:
-    if isinstance(value, bool):
-        return 'true' if value else 'false'
-    if isinstance(value, (list, tuple)):
-        return '[' + ','.join(_ros_value(v) for v in value) + ']'
-    if isinstance(value, float):
-        text = repr(value)  # YAML needs a dot in '1.0e-06', not '1e-06'
-        return text.replace('e', '.0e', 1) if 'e' in text and '.' not in text else text
-    return str(value)
 
 
 def wait_until(predicate, timeout: float, poll: float = 0.05) -> bool:
