@@ -1,0 +1,103 @@
+"""Start the arm_sim suite on a ROS 2 Jazzy install: simulator, controller, planner, recorder.
+
+    ros2 launch arm_sim arm.launch.py
+    ros2 launch arm_sim arm.launch.py namespace:=arm2 timing_mode:=real_time record:=false
+    ros2 launch arm_sim arm.launch.py --show-args
+
+The simulator is the clock source: it publishes ``clock`` relative to its namespace, so
+every node remaps ``/clock`` to ``clock``, which resolves to ``/<namespace>/clock`` (plain
+``/clock`` without a namespace) and keeps two arms in two namespaces on separate clocks. A
+remap target is expanded in the node's namespace, so this works whether ``namespace`` is
+given as ``arm2`` or ``/arm2``.
+"""
+
+from __future__ import annotations
+
+import os
+from datetime import datetime
+
+from ament_index_python.packages import get_package_share_directory
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.conditions import IfCondition
+from launch.launch_context import LaunchContext
+from launch.launch_description import LaunchDescription
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
+
+PACKAGE = 'arm_sim'
+TIMING_MODES = ['real_time', 'as_fast_as_possible', 'lockstep']
+# Topic names are relative: '/clock' -> 'clock' lands in the node's namespace.
+CLOCK_REMAP = [('/clock', 'clock')]
+
+namespace = LaunchConfiguration('namespace')
+params_file = LaunchConfiguration('params_file')
+use_sim_time = LaunchConfiguration('use_sim_time')
+timing_mode = LaunchConfiguration('timing_mode')
+bag = LaunchConfiguration('bag')
+record = LaunchConfiguration('record')
+
+
+def _arguments() -> list[DeclareLaunchArgument]:
+    default_params = os.path.join(get_package_share_directory(PACKAGE), 'config', 'arm.yaml')
+    default_bag = os.path.join(os.getcwd(),
+                               'arm_sim_' + datetime.now().strftime('%Y%m%d_%H%M%S'))
+    return [
+        DeclareLaunchArgument(
+            'namespace', default_value='',
+            description='ROS namespace of all four nodes and their topics (e.g. arm2 or '
+                        '/arm2); empty: the root namespace.'),
+        DeclareLaunchArgument(
+            'params_file', default_value=default_params,
+            description='ROS 2 params file given to every node (robot description and '
+                        'node settings).'),
+        DeclareLaunchArgument(
+            'use_sim_time', default_value='true', choices=['true', 'false'],
+            description='Run controller, planner and recorder on the simulator\'s clock '
+                        'topic. The simulator itself always runs on the wall clock.'),
+        DeclareLaunchArgument(
+            'timing_mode', default_value='', choices=['', *TIMING_MODES],
+            description='Simulator timing mode; empty: the value in params_file.'),
+        DeclareLaunchArgument(
+            'bag', default_value=default_bag,
+            description='Bag directory the recorder creates (parameter "output"); default: '
+                        'arm_sim_<timestamp> in the current directory.'),
+        DeclareLaunchArgument(
+            'record', default_value='true', choices=['true', 'false'],
+            description='Start the recorder.'),
+    ]
+
+
+def _simulator(context: LaunchContext) -> list[Node]:
+    """The simulator, with ``timing_mode`` overriding params_file only when non-empty.
+
+    It is the clock source and must run on the wall clock, so ``use_sim_time`` is pinned to
+    false even if params_file sets it for all nodes.
+    """
+    mode = timing_mode.perform(context).strip()
+    overrides = [{'use_sim_time': False}] + ([{'timing_mode': mode}] if mode else [])
+    return [Node(package=PACKAGE, executable='simulator', name='simulator',
+                 namespace=namespace, parameters=[params_file, *overrides],
+                 remappings=CLOCK_REMAP, output='screen')]
+
+
+def _sim_time_node(executable: str, **kwargs) -> Node:
+    """A node of the suite that runs on simulated time (when use_sim_time is true)."""
+    extra = kwargs.pop('parameters', [])
+    return Node(package=PACKAGE, executable=executable, name=executable, namespace=namespace,
+                parameters=[params_file,
+                            {'use_sim_time': ParameterValue(use_sim_time, value_type=bool)},
+                            *extra],
+                remappings=CLOCK_REMAP, output='screen', **kwargs)
+
+
+def generate_launch_description() -> LaunchDescription:
+    return LaunchDescription([
+        *_arguments(),
+        OpaqueFunction(function=_simulator),
+        _sim_time_node('controller'),
+        _sim_time_node('planner'),
+        _sim_time_node('recorder',
+                       parameters=[{'output': ParameterValue(bag, value_type=str)}],
+                       condition=IfCondition(record)),
+    ])
