@@ -2,6 +2,7 @@
 # arm_sim: the two commands of the README.
 #   ./run.sh demo   -- set up the venv (if needed) and run the demo
 #   ./run.sh test   -- set up the venv (if needed) and run ruff + the whole test suite
+#   ./run.sh bench  -- set up, add Pinocchio and MuJoCo, run bench/bench_dynamics.py
 #   ./run.sh setup  -- only set up
 # Set-up is idempotent: it reinstalls only when constraints.txt, setup.py, setup.cfg or
 # package.xml changed. The venv lives in .venv (override with ARM_SIM_VENV).
@@ -41,5 +42,13 @@ case "$cmd" in
     "$VENV/bin/ruff" check .
     echo "[test] pytest"
     exec "$VENV/bin/python" -m pytest "$@" ;;
-  *) echo "usage: ./run.sh demo|test|setup [args]" >&2; exit 2 ;;
+  bench)
+    setup
+    if ! "$VENV/bin/python" -c 'import pinocchio, mujoco' 2>/dev/null; then
+      echo "[setup] installing the bench extra (Pinocchio, MuJoCo), pinned"
+      "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check \
+        -c constraints.txt -e '.[bench]' 2>&1 | grep -v '^WARNING: Location' || true
+    fi
+    exec "$VENV/bin/python" bench/bench_dynamics.py "$@" ;;
+  *) echo "usage: ./run.sh demo|test|bench|setup [args]" >&2; exit 2 ;;
 esac

@@ -52,6 +52,37 @@ def _pair(name: str, x: object) -> Pair | None:
     return a, b
 
 
+def _make_accel(k: tuple[float, ...], cos: Callable, sin: Callable) -> Callable:
+    """qdd(q1, q2, qd1, qd2, t1, t2) for one parameter set ``k``; with ``math`` functions it
+    takes floats, with ``numpy`` ones arrays: the single formula both paths use. Solves
+    ``D qdd = tau - C qd - g - B qd`` (2x2, closed form)."""
+    a, b, d, g1, g2, b1, b2 = k
+
+    def accel(q1, q2, qd1, qd2, t1, t2):
+        c2 = cos(q2)
+        bs2 = b * sin(q2)
+        gc12 = g2 * cos(q1 + q2)
+        d11 = a + 2.0 * b * c2
+        d12 = d + b * c2
+        r1 = t1 + bs2 * qd2 * (2.0 * qd1 + qd2) - g1 * cos(q1) - gc12 - b1 * qd1
+        r2 = t2 - bs2 * qd1 * qd1 - gc12 - b2 * qd2
+        det = d11 * d - d12 * d12
+        return (d * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
+
+    return accel
+
+
+def _fast_floats(q: object, qd: object, tau: object) -> list[float] | None:
+    """The hot path: three finite (2,) float arrays as six floats, else None (the caller
+    then takes the validating path, which names any bad argument)."""
+    if (type(q) is np.ndarray and type(qd) is np.ndarray and type(tau) is np.ndarray
+            and q.shape == qd.shape == tau.shape == (2,)):
+        x = q.tolist() + qd.tolist() + tau.tolist()
+        if math.isfinite(sum(x)):
+            return x
+    return None
+
+
 @dataclass(frozen=True)
 class TwoLinkArm:
     """Planar 2-R arm with point-mass-plus-inertia links and viscous joint damping.
@@ -102,38 +133,25 @@ class TwoLinkArm:
                 'link_inertias/com_distances: the mass matrix D(q) is singular for some q '
                 f'(link_inertias={self.link_inertias}, com_distances={self.com_distances}); '
                 'give link 2 a positive inertia or a non-zero com distance')
-        g0 = self.gravity
-        object.__setattr__(self, '_k', (a, b, d, (m1 * lc1 + m2 * l1) * g0, m2 * lc2 * g0,
-                                        *self.joint_damping))
+        k = (a, b, d, (m1 * lc1 + m2 * l1) * self.gravity, m2 * lc2 * self.gravity,
+             *self.joint_damping)
+        object.__setattr__(self, '_k', k)
+        object.__setattr__(self, '_acc_float', _make_accel(k, math.cos, math.sin))
+        object.__setattr__(self, '_acc_array', _make_accel(k, np.cos, np.sin))
 
     # ------------------------------------------------------------------ core formulas
-    def _accel(self, cos: Callable, sin: Callable, q1, q2, qd1, qd2, t1, t2):
-        """qdd from floats (``math``) or arrays (``numpy``): the single formula both use."""
-        a, b, d, g1, g2, b1, b2 = self._k
-        c2 = cos(q2)
-        bs2 = b * sin(q2)
-        gc12 = g2 * cos(q1 + q2)
-        d11 = a + 2.0 * b * c2
-        d12 = d + b * c2
-        r1 = t1 + bs2 * qd2 * (2.0 * qd1 + qd2) - g1 * cos(q1) - gc12 - b1 * qd1
-        r2 = t2 - bs2 * qd1 * qd1 - gc12 - b2 * qd2
-        det = d11 * d - d12 * d12
-        return (d * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
-
-    def _rk4(self, cos: Callable, sin: Callable, q1, q2, qd1, qd2, t1, t2, dt: float,
-             n_steps: int):
+    def _rk4(self, acc: Callable, q1, q2, qd1, qd2, t1, t2, dt: float, n_steps: int):
         """Classic RK4 with the torque held over each step; floats or arrays."""
-        acc = self._accel
         h2 = 0.5 * dt
         h6 = dt / 6.0
         for _ in range(n_steps):
-            a1, b1 = acc(cos, sin, q1, q2, qd1, qd2, t1, t2)
+            a1, b1 = acc(q1, q2, qd1, qd2, t1, t2)
             p1, p2, v1, v2 = q1 + h2 * qd1, q2 + h2 * qd2, qd1 + h2 * a1, qd2 + h2 * b1
-            a2, b2 = acc(cos, sin, p1, p2, v1, v2, t1, t2)
+            a2, b2 = acc(p1, p2, v1, v2, t1, t2)
             r1, r2, w1, w2 = q1 + h2 * v1, q2 + h2 * v2, qd1 + h2 * a2, qd2 + h2 * b2
-            a3, b3 = acc(cos, sin, r1, r2, w1, w2, t1, t2)
+            a3, b3 = acc(r1, r2, w1, w2, t1, t2)
             s1, s2, u1, u2 = q1 + dt * w1, q2 + dt * w2, qd1 + dt * a3, qd2 + dt * b3
-            a4, b4 = acc(cos, sin, s1, s2, u1, u2, t1, t2)
+            a4, b4 = acc(s1, s2, u1, u2, t1, t2)
             q1 = q1 + h6 * (qd1 + 2.0 * (v1 + w1) + u1)
             q2 = q2 + h6 * (qd2 + 2.0 * (v2 + w2) + u2)
             qd1 = qd1 + h6 * (a1 + 2.0 * (a2 + a3) + a4)
@@ -177,11 +195,14 @@ class TwoLinkArm:
 
         One 2x2 solve of ``D qdd = tau - C qd - g - B qd``. Shapes (2,) or (..., 2).
         """
+        x = _fast_floats(q, qd, tau)
+        if x is not None:
+            return np.array(self._acc_float(*x))
         s = (_pair('q', q), _pair('qd', qd), _pair('tau', tau))
         if None not in s:
-            return np.array(self._accel(math.cos, math.sin, *s[0], *s[1], *s[2]))
+            return np.array(self._acc_float(*s[0], *s[1], *s[2]))
         q, qd, tau = (state_array(n, v, 2) for n, v in (('q', q), ('qd', qd), ('tau', tau)))
-        out = self._accel(np.cos, np.sin, q[..., 0], q[..., 1], qd[..., 0], qd[..., 1],
+        out = self._acc_array(q[..., 0], q[..., 1], qd[..., 0], qd[..., 1],
                           tau[..., 0], tau[..., 1])
         return np.stack(np.broadcast_arrays(*out), -1)
 
@@ -199,16 +220,18 @@ class TwoLinkArm:
         """
         dt = finite_scalar('dt', dt, minimum=0.0, strict=True)
         n_steps = step_count('n_steps', n_steps)
-        s = (_pair('q', q), _pair('qd', qd), _pair('tau', tau))
-        if None not in s:
+        x = _fast_floats(q, qd, tau)
+        if x is None:
+            s = (_pair('q', q), _pair('qd', qd), _pair('tau', tau))
+            x = None if None in s else [*s[0], *s[1], *s[2]]
+        if x is not None:
             try:
-                q1, q2, qd1, qd2 = self._rk4(math.cos, math.sin, *s[0], *s[1], *s[2], dt,
-                                             n_steps)
+                q1, q2, qd1, qd2 = self._rk4(self._acc_float, *x, dt, n_steps)
             except (ValueError, OverflowError):  # math.cos(inf): diverged, as numpy would
                 q1 = q2 = qd1 = qd2 = math.nan
             return np.array((q1, q2)), np.array((qd1, qd2))
         q, qd, tau = (state_array(n, v, 2) for n, v in (('q', q), ('qd', qd), ('tau', tau)))
-        q1, q2, qd1, qd2 = self._rk4(np.cos, np.sin, q[..., 0], q[..., 1], qd[..., 0],
+        q1, q2, qd1, qd2 = self._rk4(self._acc_array, q[..., 0], q[..., 1], qd[..., 0],
                                      qd[..., 1], tau[..., 0], tau[..., 1], dt, n_steps)
         q1, q2, qd1, qd2 = np.broadcast_arrays(q1, q2, qd1, qd2)
         return np.stack((q1, q2), -1), np.stack((qd1, qd2), -1)
