@@ -16,7 +16,7 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(include=['arm_dynamics*', 'arm_control*', 'arm_planner*',
-                                    'arm_sim*']),
+                                    'arm_bag*', 'arm_sim*']),
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
@@ -28,8 +28,8 @@ setup(
         # Versions live in constraints.txt; these are the names only.
         'ros': ['ros-jazzy-rclpy', 'ros-jazzy-common-interfaces',
                 'ros-jazzy-rmw-fastrtps-cpp', 'ros-jazzy-std-srvs'],
-        'core': ['numpy', 'scipy', 'mcap', 'pyyaml'],
-        'test': ['pytest', 'pytest-timeout', 'ruff', 'colcon-common-extensions'],
+        'core': ['numpy', 'scipy', 'mcap', 'pyyaml', 'matplotlib'],
+        'test': ['pytest', 'pytest-timeout', 'ruff', 'colcon-common-extensions', 'rosbags'],
         'bench': ['pin', 'mujoco'],
     },
     zip_safe=True,
