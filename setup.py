@@ -41,6 +41,7 @@ setup(
     entry_points={
         'console_scripts': [
             'simulator = arm_dynamics.simulator_node:main',
+            'controller = arm_control.controller_node:main',
             'arm-sim = arm_sim.cli:main',
         ],
     },

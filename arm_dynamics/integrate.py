@@ -119,7 +119,7 @@ def simulate(*, model: Model, q0, qd0, torque: TorqueLaw | np.ndarray | list | t
     t = np.arange(steps + 1) * dt
     qs, qds, taus = np.empty((steps + 1, n)), np.empty((steps + 1, n)), np.empty((steps + 1, n))
     qs[0], qds[0] = q, qd
-    tau = applied(0.0, q, qd)
+    tau = np.zeros(n)
     for k in range(steps):
         if k % hold == 0:
             tau = applied(t[k], q, qd)

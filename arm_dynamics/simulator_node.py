@@ -27,7 +27,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
-from arm_dynamics.simulation import CommandError, SimulatorCore, make_model
+from arm_dynamics.simulation import CommandError, SimulatorCore, make_model, parse_answer_tag
 from arm_sim.params import ROBOT_PARAMS, ParamSpec
 from arm_sim.ros_common import (
     ConfigError,
@@ -138,6 +138,7 @@ class SimulatorNode(Node):
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.diag = Diagnostics(self)
         self.commands = 0
+        self.stale_commands = 0
         self.ever_commanded = False
         self.timed_out = False
         self.last_command_wall = time.monotonic()
@@ -235,6 +236,16 @@ class SimulatorNode(Node):
         self.publish_state()
 
     def _on_command(self, msg: Float64MultiArray) -> None:
+        answers = parse_answer_tag(msg.layout.dim[0].label) if msg.layout.dim else None
+        if (self.mode == 'lockstep' and answers is not None
+                and answers != self.core.time_ns):
+            # An answer to an older state (e.g. queued while a restarted controller caught
+            # up): using it would leave two commands in flight and delay control for good.
+            self.stale_commands += 1
+            if self.timed_out:
+                self.timed_out = False  # the controller is back: wait for its next answer
+                self.get_logger().info('effort commands resumed (resynchronising lockstep)')
+            return
         try:
             self.core.set_command(msg.data)
         except CommandError as exc:
@@ -293,6 +304,7 @@ class SimulatorNode(Node):
         self.diag.set(level, message, sim_time=f'{core.time:.3f}', timing_mode=self.mode,
                       achieved_real_time_factor=f'{self.achieved_rtf:.2f}',
                       commands_received=self.commands,
+                      stale_commands_ignored=self.stale_commands,
                       saturated_joints=[n for n, s in zip(core.joint_names, core.saturated)
                                         if s])
 

@@ -142,7 +142,10 @@ def run_node(factory: Callable[[], Node], *, prog: str, summary: str,
     argv = sys.argv[1:] if args is None else args
     own = argv[:argv.index('--ros-args')] if '--ros-args' in argv else argv
     if '-h' in own or '--help' in own:
-        print_help(prog, summary, specs)
+        try:
+            print_help(prog, summary, specs)
+        except BrokenPipeError:  # e.g. piped into head
+            sys.stdout = None
         return 0
     rclpy.init(args=[prog, *argv])
     node = None

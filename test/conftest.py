@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-DOMAIN_ID = int(os.environ.get('ARM_SIM_TEST_DOMAIN', 100 + os.getpid() % 100))
+DOMAIN_ID = int(os.environ.get('ARM_SIM_TEST_DOMAIN', 1 + os.getpid() % 231))
 os.environ['ROS_DOMAIN_ID'] = str(DOMAIN_ID)
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
@@ -98,6 +98,32 @@ def ros(ros_session):
     ros_session.reset()
 
 
+class Launcher:
+    """Starts node processes on the test domain; ``procs`` lists them in start order."""
+
+    def __init__(self, log_dir: Path) -> None:
+        self.log_dir = log_dir
+        self.procs: list = []
+
+    def __call__(self, name: str, **kwargs):
+        from arm_sim.launcher import NodeProcess
+
+        log = self.log_dir / f'{name}-{len(self.procs)}.log'
+        proc = NodeProcess(name, domain_id=DOMAIN_ID, log_path=log, **kwargs)
+        self.procs.append(proc)
+        return proc
+
+
+@pytest.hookimpl(wrapper=True, tryfirst=True)
+def pytest_runtest_makereport(item, call):
+    report = yield
+    if report.when == 'call' and report.failed:
+        launcher = item.funcargs.get('launch')
+        for proc in getattr(launcher, 'procs', []):
+            report.sections.append((f'{proc.name} log', proc.output()[-4000:]))
+    return report
+
+
 @pytest.fixture
 def launch(tmp_path: Path):
     """Start node processes for one test: ``launch('simulator', params={...})``.
@@ -105,19 +131,10 @@ def launch(tmp_path: Path):
     All are stopped with SIGINT at the end of the test (and must exit cleanly); a node
     that died early or failed to stop shows its log in the failure.
     """
-    from arm_sim.launcher import NodeProcess
-
-    procs: list[NodeProcess] = []
-
-    def start(name: str, **kwargs) -> NodeProcess:
-        log = tmp_path / f'{name}-{len(procs)}.log'
-        proc = NodeProcess(name, domain_id=DOMAIN_ID, log_path=log, **kwargs)
-        procs.append(proc)
-        return proc
-
-    yield start
+    launcher = Launcher(tmp_path)
+    yield launcher
     problems = []
-    for proc in procs:
+    for proc in launcher.procs:
         was_alive = proc.alive()
         code = proc.stop(signal.SIGINT)
         if was_alive and code not in (0, -signal.SIGINT):

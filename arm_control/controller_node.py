@@ -1,0 +1,235 @@
+"""``controller`` node: joint-space control of the arm over ROS topics.
+
+Thin shell around :class:`arm_control.core.ControllerCore`.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from trajectory_msgs.msg import JointTrajectory
+
+from arm_control.core import ControllerCore
+from arm_control.laws import LAWS, ControlLaw, Gains
+from arm_control.trajectory import TrajectoryError, TrajectoryPoint
+from arm_dynamics.simulation import answer_tag
+from arm_dynamics.two_link import TwoLinkArm
+from arm_sim.params import ROBOT_PARAMS, ParamSpec
+from arm_sim.ros_common import (
+    ConfigError,
+    Diagnostics,
+    declare_parameters,
+    on_parameter_changes,
+    run_node,
+    steady_clock,
+)
+
+SUMMARY = '''
+Joint-space controller for the 2-R arm. Subscribes joint_states (sensor_msgs/JointState)
+and arm_controller/joint_trajectory (trajectory_msgs/JointTrajectory, as ros2_controllers'
+joint_trajectory_controller takes it: one point = set point; several = interpolated,
+quintic/cubic/linear by what the points carry; header.stamp = start time, zero = on
+arrival). Publishes effort_controller/commands (std_msgs/Float64MultiArray, N m) and
+arm_controller/reference (JointState: desired position and velocity, commanded effort,
+stamped like the state it answers). Until the first trajectory it holds the first measured
+position. Laws: pd, pd_gravity, computed_torque, pid. Reports on /diagnostics.
+'''
+
+MODEL_KEYS = ('link_lengths', 'com_distances', 'link_masses', 'link_inertias',
+              'joint_damping')
+
+CONTROL_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec('law', 'string', 'computed_torque', 'Control law', choices=LAWS),
+    ParamSpec('gains.kp', 'doubles', [100.0, 60.0],
+              'Proportional gains (computed_torque: 1/s^2, others N m/rad)', 'per joint',
+              minimum=0.0, maximum=1e6, length=2),
+    ParamSpec('gains.kd', 'doubles', [20.0, 12.0],
+              'Derivative gains (computed_torque: 1/s, others N m s/rad)', 'per joint',
+              minimum=0.0, maximum=1e6, length=2),
+    ParamSpec('gains.ki', 'doubles', [50.0, 30.0], 'Integral gains (pid)', 'N m/(rad s)',
+              minimum=0.0, maximum=1e6, length=2),
+    ParamSpec('gains.i_clamp', 'doubles', [20.0, 10.0],
+              'Bound on the integral term (pid anti-windup)', 'N m', minimum=0.0,
+              maximum=1e6, length=2),
+    ParamSpec('update_on', 'string', 'joint_states',
+              'When to compute a command: on every new joint state (use with the '
+              "simulator's lockstep mode) or on a timer at control_rate",
+              choices=('joint_states', 'timer'), read_only=True),
+    ParamSpec('control_rate', 'double', 100.0, 'Command rate when update_on is timer', 'Hz',
+              minimum=0.0, strict_min=True, maximum=10000.0, read_only=True),
+    ParamSpec('state_timeout', 'double', 0.5,
+              'Wall-clock age of the last joint state after which the controller stops '
+              'commanding and reports (timer mode); commanding resumes with fresh states',
+              's', minimum=0.0, strict_min=True, maximum=3600.0),
+) + tuple(
+    ParamSpec(f'model.{k}', 'doubles', [], f'Controller model {k.replace("_", " ")}; '
+              'empty = the robot parameter (set to study model mismatch)',
+              next(s.unit for s in ROBOT_PARAMS if s.name == k), minimum=0.0,
+              maximum=1e4, read_only=True)
+    for k in MODEL_KEYS
+) + (ParamSpec('model.gravity', 'double', -1.0, 'Controller model gravity; negative = the '
+               'robot parameter', 'm/s^2', maximum=100.0, read_only=True),)
+
+
+def _stamp(msg) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+def gains_from(p: dict) -> Gains:
+    return Gains(kp=p['gains.kp'], kd=p['gains.kd'], ki=p['gains.ki'],
+                 i_clamp=p['gains.i_clamp'])
+
+
+class ControllerNode(Node):
+    """See SUMMARY."""
+
+    def __init__(self) -> None:
+        super().__init__('controller')
+        p = declare_parameters(self, ROBOT_PARAMS + CONTROL_PARAMS)
+        model_args = {k: (p[f'model.{k}'] or p[k]) for k in MODEL_KEYS}
+        model_args['gravity'] = p['gravity'] if p['model.gravity'] < 0 else p['model.gravity']
+        try:
+            model = TwoLinkArm(**model_args)
+            law = ControlLaw(p['law'], gains_from(p), model, tuple(p['effort_limits']))
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        self.params = p
+        self.core = ControllerCore(p['joint_names'], law)
+        self.cmd_pub = self.create_publisher(Float64MultiArray, 'effort_controller/commands',
+                                             10)
+        self.ref_pub = self.create_publisher(JointState, 'arm_controller/reference', 10)
+        self.create_subscription(JointState, 'joint_states', self._on_state, 10)
+        self.create_subscription(JointTrajectory, 'arm_controller/joint_trajectory',
+                                 self._on_trajectory, 10)
+        self.diag = Diagnostics(self)
+        self.latest: tuple[float, np.ndarray, np.ndarray] | None = None
+        self.latest_wall = 0.0
+        self.answered: float | None = None
+        self.stale = False
+        self.saturations = 0
+        if p['update_on'] == 'timer':
+            self.create_timer(1.0 / p['control_rate'], self._on_timer, clock=steady_clock())
+        self.create_timer(0.1, self._watch, clock=steady_clock())
+        on_parameter_changes(self, CONTROL_PARAMS, self._validate_change, self._apply_change)
+        self.get_logger().info(f"{p['law']} control, updating on {p['update_on']}")
+
+    # ------------------------------------------------------------------ parameters
+    def _validate_change(self, changed: dict) -> str | None:
+        merged = {**self.params, **changed}
+        try:
+            gains_from(merged)
+        except ValueError as exc:
+            return str(exc)
+        return None
+
+    def _apply_change(self, changed: dict) -> None:
+        self.params.update(changed)
+        law = self.core.law
+        law.gains = gains_from(self.params)
+        if law.law != self.params['law']:
+            law.law = self.params['law']
+            law.reset()
+        self.get_logger().info(f'parameters changed: {changed}')
+
+    # ------------------------------------------------------------------ input
+    def _on_state(self, msg: JointState) -> None:
+        try:
+            order = [list(msg.name).index(j) for j in self.core.joint_names]
+            q = np.array([msg.position[i] for i in order], dtype=float)
+            qd = (np.array([msg.velocity[i] for i in order], dtype=float) if msg.velocity
+                  else np.zeros(len(order)))
+        except (ValueError, IndexError):
+            self.diag.problem('rejected_state', f'joint_states lacks joints '
+                              f'{list(self.core.joint_names)} (got names {list(msg.name)}, '
+                              f'{len(msg.position)} positions, {len(msg.velocity)} velocities)')
+            return
+        if not (np.isfinite(q).all() and np.isfinite(qd).all()):
+            self.diag.problem('rejected_state', f'joint_states has non-finite values: '
+                              f'q={q.tolist()} qd={qd.tolist()}')
+            return
+        self.latest = (_stamp(msg), q, qd)
+        self.latest_wall = time.monotonic()
+        if self.stale:
+            self.stale = False
+            self.get_logger().info('fresh joint states: commanding again')
+        if self.params['update_on'] == 'joint_states':
+            self._control(msg.header.stamp)
+
+    def _on_trajectory(self, msg: JointTrajectory) -> None:
+        if self.latest is None:
+            self.diag.problem('rejected_trajectory', 'trajectory refused: no joint state '
+                              'received yet')
+            return
+        t_now, q, qd = self.latest
+        start = _stamp(msg) or t_now
+        points = [TrajectoryPoint(p.time_from_start.sec + p.time_from_start.nanosec * 1e-9,
+                                  p.positions, p.velocities, p.accelerations)
+                  for p in msg.points]
+        try:
+            traj = self.core.set_trajectory(msg.joint_names, points, start, q, qd)
+        except TrajectoryError as exc:
+            self.diag.problem('rejected_trajectory', f'trajectory refused: {exc}; keeping '
+                              'the current reference')
+            return
+        self.get_logger().info(f'new trajectory: {len(msg.points)} point(s) over '
+                               f'{traj.duration:.3f} s from t={start:.3f} s')
+
+    # ------------------------------------------------------------------ output
+    def _on_timer(self) -> None:
+        if self.latest is not None and not self.stale:
+            self._control(None)
+
+    def _control(self, stamp) -> None:
+        t, q, qd = self.latest
+        if stamp is not None and self.answered == t:
+            return  # a re-sent state (simulator heartbeat) that we already answered
+        step = self.core.update(t, q, qd)
+        cmd = step.command
+        out = Float64MultiArray(data=cmd.tau.tolist())
+        if stamp is not None:  # lockstep: name the state this command answers
+            out.layout.dim = [MultiArrayDimension(
+                label=answer_tag(stamp.sec * 1_000_000_000 + stamp.nanosec),
+                size=len(out.data), stride=len(out.data))]
+        self.cmd_pub.publish(out)
+        if self.cmd_pub.get_subscription_count() > 0:
+            self.answered = t  # delivered: a heartbeat of this state needs no new answer
+        ref = JointState(name=list(self.core.joint_names), position=step.q_des.tolist(),
+                         velocity=step.qd_des.tolist(), effort=cmd.tau.tolist())
+        sec = int(t)
+        ref.header.stamp.sec, ref.header.stamp.nanosec = sec, int(round((t - sec) * 1e9))
+        if stamp is not None:
+            ref.header.stamp = stamp
+        self.ref_pub.publish(ref)
+        if cmd.saturated.any():
+            self.saturations += 1
+            self.diag.problem('saturation', f'torque saturated at the effort limits on '
+                              f'{[j for j, s in zip(self.core.joint_names, cmd.saturated) if s]}'
+                              f' (wanted {cmd.raw.round(2).tolist()} N m)', 'WARN')
+
+    def _watch(self) -> None:
+        age = time.monotonic() - self.latest_wall
+        if self.latest is not None and not self.stale and age > self.params['state_timeout']:
+            self.stale = True
+            self.diag.problem('stale_state', f'no joint state for {age:.2f} s: stopped '
+                              'commanding until fresh states arrive')
+        level = 'WARN' if self.stale or self.latest is None else 'OK'
+        message = ('waiting for joint states' if self.latest is None else
+                   'joint states stale' if self.stale else
+                   f"{self.core.law.law} control")
+        self.diag.set(level, message, law=self.core.law.law,
+                      trajectories_accepted=self.core.trajectories_accepted,
+                      holding_start=self.core.holding_start,
+                      saturated_ticks=self.saturations)
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(ControllerNode, prog='controller', summary=SUMMARY,
+                    specs=ROBOT_PARAMS + CONTROL_PARAMS, args=args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,122 @@
+"""Control laws in closed loop with the exact plant, through simulate() (no ROS)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import fsolve
+
+from arm_control.core import ControllerCore
+from arm_control.laws import ControlLaw, Gains
+from arm_control.trajectory import Trajectory, TrajectoryError, TrajectoryPoint
+from arm_dynamics import TwoLinkArm, simulate
+
+PLANT = TwoLinkArm()
+LIMITS = (60.0, 20.0)
+Q0 = np.array([-0.4, 1.2])
+GOAL = np.array([0.3, 0.6])
+
+
+def run(law: ControlLaw, trajectory: Trajectory, duration: float, plant=PLANT, q0=Q0,
+        dt=1e-3):
+    core = ControllerCore(('joint1', 'joint2'), law)
+    core.trajectory, core.start = trajectory, 0.0
+    refs = []
+
+    def torque(t, q, qd):
+        step = core.update(t, q, qd)
+        refs.append(step.q_des)
+        return step.command.tau
+
+    res = simulate(model=plant, q0=q0, qd0=[0.0, 0.0], torque=torque, duration=duration,
+                   dt=dt)
+    return res, np.array(refs)
+
+
+def set_point(q) -> Trajectory:
+    return Trajectory(Q0, [0, 0], np.zeros(1), np.array([q], dtype=float))
+
+
+def quintic_move(q_from, q_to, duration) -> Trajectory:
+    return Trajectory(q_from, [0, 0], np.array([0.0, duration]),
+                      np.array([q_from, q_to], dtype=float), np.zeros((2, 2)),
+                      np.zeros((2, 2)))
+
+
+def test_pd_with_gravity_compensation_reaches_the_set_point_exactly():
+    law = ControlLaw('pd_gravity', Gains(kp=(200, 100), kd=(40, 20)), PLANT, LIMITS)
+    res, _ = run(law, set_point(GOAL), 6.0)
+    err = np.abs(res.q[-1] - GOAL).max()
+    assert err < 1e-6, f'steady-state error {err:.2e} rad (bound 1e-6)'
+
+
+def test_plain_pd_leaves_the_steady_state_error_theory_predicts():
+    kp = np.array([200.0, 100.0])
+    law = ControlLaw('pd', Gains(kp=tuple(kp), kd=(40, 20)), PLANT, LIMITS)
+    res, _ = run(law, set_point(GOAL), 8.0)
+    # At rest: Kp (q_goal - q) = g(q).
+    q_rest = fsolve(lambda q: kp * (GOAL - q) - PLANT.gravity_vector(q), GOAL, xtol=1e-13)
+    assert np.abs(res.qd[-1]).max() < 1e-6, 'the arm has come to rest'
+    gap = np.abs(res.q[-1] - q_rest).max()
+    assert gap < 1e-4, f'resting point differs from Kp e = g(q) by {gap:.2e} rad (bound 1e-4)'
+    assert np.abs(GOAL - q_rest).max() > 1e-2, 'gravity really leaves an error'
+
+
+def test_computed_torque_with_exact_model_tracks_a_quintic_trajectory():
+    law = ControlLaw('computed_torque', Gains(kp=(400, 400), kd=(40, 40)), PLANT, LIMITS)
+    res, refs = run(law, quintic_move(Q0, GOAL, 1.5), 2.0)
+    err = np.abs(res.q - refs).max()
+    assert err < 1e-5, f'max tracking error {err:.2e} rad (bound 1e-5 at 1 ms control)'
+    assert np.abs(res.tau).max() > 1.0, 'the move needs real torque'
+
+
+def test_payload_mismatch_grows_the_error_and_pid_removes_the_steady_state_part():
+    m1, m2 = PLANT.link_masses
+    heavy = TwoLinkArm(link_masses=(m1, 1.2 * m2))  # 20% payload on link 2, unmodelled
+    ct = ControlLaw('computed_torque', Gains(kp=(100, 100), kd=(20, 20)), PLANT, LIMITS)
+    exact, _ = run(ct, set_point(GOAL), 4.0)
+    ct.reset()
+    mismatched, _ = run(ct, set_point(GOAL), 4.0, plant=heavy)
+    e_exact = np.abs(exact.q[-1] - GOAL).max()
+    e_mis = np.abs(mismatched.q[-1] - GOAL).max()
+    assert e_exact < 1e-6 and e_mis > 1e-3, f'mismatch error {e_mis:.2e} vs exact {e_exact:.2e}'
+    pid = ControlLaw('pid', Gains(kp=(300, 150), kd=(60, 25), ki=(300, 150),
+                                  i_clamp=(60, 20)), PLANT, LIMITS)
+    fixed, _ = run(pid, set_point(GOAL), 12.0, plant=heavy)
+    e_pid = np.abs(fixed.q[-1] - GOAL).max()
+    assert e_pid < 1e-4, f'PID steady-state error {e_pid:.2e} rad (bound 1e-4)'
+
+
+@pytest.mark.parametrize('law', ['pd', 'pd_gravity', 'computed_torque', 'pid'])
+def test_torque_never_exceeds_the_limits(law):
+    limits = (15.0, 5.0)  # below what a fast move wants
+    ctrl = ControlLaw(law, Gains(kp=(400, 400), kd=(40, 40)), PLANT, limits)
+    res, _ = run(ctrl, quintic_move(Q0, GOAL + 1.0, 0.4), 1.0)
+    assert (np.abs(res.tau) <= np.array(limits) + 1e-12).all()
+    assert (np.abs(res.tau) >= np.array(limits) - 1e-9).any(), 'the limits were reached'
+
+
+def test_pid_integral_is_clamped():
+    ctrl = ControlLaw('pid', Gains(kp=(0, 0), kd=(0, 0), ki=(1000, 1000), i_clamp=(3, 2)),
+                      PLANT, (1e3, 1e3))
+    for _ in range(100):
+        cmd = ctrl(np.zeros(2), np.zeros(2), np.ones(2), np.zeros(2), np.zeros(2), 0.01)
+    assert cmd.tau.tolist() == [3.0, 2.0]
+
+
+def test_controller_holds_the_first_measured_position_until_a_trajectory_arrives():
+    core = ControllerCore(('joint1', 'joint2'), ControlLaw('pd_gravity', Gains(), PLANT,
+                                                             LIMITS))
+    step = core.update(5.0, Q0, np.zeros(2))
+    assert step.q_des.tolist() == Q0.tolist() and core.holding_start
+    step = core.update(5.5, Q0 + 0.1, np.zeros(2))
+    assert step.q_des.tolist() == Q0.tolist()
+
+
+def test_invalid_trajectory_keeps_the_current_reference():
+    core = ControllerCore(('joint1', 'joint2'), ControlLaw('pd', Gains(), PLANT, LIMITS))
+    core.update(0.0, Q0, np.zeros(2))
+    with pytest.raises(TrajectoryError, match='unknown joint'):
+        core.set_trajectory(['joint1', 'elbow'], [TrajectoryPoint(1.0, [0, 0])], 0.0, Q0,
+                            np.zeros(2))
+    assert core.update(0.1, Q0, np.zeros(2)).q_des.tolist() == Q0.tolist()

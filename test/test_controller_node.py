@@ -1,0 +1,196 @@
+"""Topic-level tests: simulator + controller as real processes, lockstep."""
+
+from __future__ import annotations
+
+import math
+import signal
+
+import numpy as np
+import pytest
+from builtin_interfaces.msg import Duration, Time
+from diagnostic_msgs.msg import DiagnosticArray
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from arm_control.core import ControllerCore
+from arm_control.laws import ControlLaw, Gains
+from arm_control.trajectory import Trajectory, TrajectoryPoint, validate_trajectory
+from arm_dynamics import TwoLinkArm, simulate
+from arm_sim.launcher import config_file
+
+ARM = TwoLinkArm()
+Q0 = [-0.4, 1.2]
+JOINTS = ['joint1', 'joint2']
+CONFIG = config_file()
+KP, KD = (100.0, 60.0), (20.0, 12.0)  # config/arm.yaml computed-torque gains
+
+
+def stamp(msg) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+def duration(seconds: float) -> Duration:
+    sec = math.floor(seconds)
+    return Duration(sec=sec, nanosec=round((seconds - sec) * 1e9))
+
+
+def trajectory(points, start: float = 0.0, names=JOINTS) -> JointTrajectory:
+    msg = JointTrajectory(joint_names=list(names))
+    sec = math.floor(start)
+    msg.header.stamp = Time(sec=sec, nanosec=round((start - sec) * 1e9))
+    for t, pos, *rest in points:
+        pt = JointTrajectoryPoint(positions=[float(x) for x in pos],
+                                  time_from_start=duration(t))
+        if rest:
+            pt.velocities = [float(x) for x in rest[0]]
+            pt.accelerations = [float(x) for x in rest[1]]
+        msg.points.append(pt)
+    return msg
+
+
+def problems(diags: list, node: str, kind: str) -> list[str]:
+    return [s.message for d in diags for s in d.status
+            if s.name == node and s.message.startswith(kind)]
+
+
+@pytest.fixture
+def suite(ros, launch):
+    """Simulator (lockstep) + controller (computed torque) from config/arm.yaml."""
+    def start(sim_params=None, ctrl_params=None):
+        launch('simulator', params_file=CONFIG,
+               params={'timing_mode': 'lockstep', **(sim_params or {})})
+        launch('controller', params_file=CONFIG, params=ctrl_params or {})
+        states = ros.collect(JointState, 'joint_states', qos=1000)
+        refs = ros.collect(JointState, 'arm_controller/reference', qos=1000)
+        traj_pub = ros.publisher(JointTrajectory, 'arm_controller/joint_trajectory')
+        ros.wait_for(lambda: states and stamp(states[-1]) > 0.05, timeout=30,
+                     what='the closed loop to run')
+        ros.wait_for(lambda: traj_pub.get_subscription_count() > 0, what='controller')
+        return states, refs, traj_pub
+    return start
+
+
+def sampled_data_error_bound(plan: Trajectory, period: float) -> np.ndarray:
+    """Per-joint bound [rad] on computed-torque tracking error with the torque held for
+    ``period`` s and an exact model.
+
+    Holding the torque turns ``e'' + Kd e' + Kp e = 0`` into a sampled-data loop
+    ``x_{k+1} = A x_k + G w_k`` (x = (e, e'), feedback ``-Kp e_k - Kd e'_k`` held over the
+    period) driven by the acceleration error ``w`` of a held torque: the difference between
+    what the plant does under the torque computed at ``t_k`` and ``qdd_des`` up to one
+    period later, evaluated along the plan. ``|e| <= sum_j |C A^j G| * max|w|`` (the l1 norm
+    of the loop's impulse response). A factor 1.25 covers evaluating ``w`` on the plan
+    rather than on the (slightly different) actual path.
+    """
+    t0 = np.arange(0.0, plan.duration + period, period)
+    q, qd, qdd = plan.sample_many(t0)
+    tau = ARM.inverse_dynamics(q, qd, qdd)
+    w = np.zeros(2)
+    for s in np.linspace(0.0, period, 11):
+        q1, qd1, qdd1 = plan.sample_many(t0 + s)
+        w = np.maximum(w, np.abs(ARM.forward_dynamics(q1, qd1, tau) - qdd1).max(axis=0))
+    bound = np.zeros(2)
+    for j in range(2):
+        g = np.array([period**2 / 2, period])
+        a = np.array([[1.0, period], [0.0, 1.0]]) - np.outer(g, [KP[j], KD[j]])
+        x, gain = g, 0.0
+        for _ in range(3000):  # |eig(a)| < 0.95: the tail is negligible
+            gain += abs(x[0])
+            x = a @ x
+        bound[j] = 1.25 * gain * w[j]
+    return bound
+
+
+def run_until(ros, states, t_end: float, timeout: float = 60.0) -> None:
+    ros.wait_for(lambda: stamp(states[-1]) >= t_end - 1e-9, timeout=timeout,
+                 what=f'simulated time {t_end:.2f} s')
+
+
+def test_the_arm_is_held_at_start(ros, suite):
+    states, _, _ = suite()
+    run_until(ros, states, 2.0)
+    q = np.array([m.position for m in states])
+    drift = np.abs(q - Q0).max()
+    assert drift < 1e-9, f'arm drifted {drift:.2e} rad from its start pose (bound 1e-9)'
+    assert abs(states[-1].effort[0]) > 5.0, 'it is held against gravity, not resting'
+
+
+def test_a_set_point_is_reached(ros, suite):
+    states, _, pub = suite()
+    goal = [0.3, 0.6]
+    pub.publish(trajectory([(0.0, goal)]))
+    t0 = stamp(states[-1])
+    run_until(ros, states, t0 + 4.0)
+    err = np.abs(np.array(states[-1].position) - goal).max()
+    assert err < 1e-4, f'set point error after 4 s: {err:.2e} rad (bound 1e-4)'
+
+
+def test_a_multi_point_trajectory_is_tracked_within_the_derived_bound(ros, suite):
+    states, refs, pub = suite()
+    # Quintic waypoints (positions, velocities, accelerations), starting 0.5 s from now.
+    points = [(0.5, Q0, [0, 0], [0, 0]), (1.5, [0.0, 0.9], [0.6, -0.4], [0, 0]),
+              (2.5, [0.3, 0.6], [0, 0], [0, 0])]
+    start = round(stamp(states[-1]) + 0.5, 2)
+    pub.publish(trajectory(points, start=start))
+    run_until(ros, states, start + 3.5)
+    ref_by_t = {stamp(r): r for r in refs}
+    tracked = np.array([(m.position, ref_by_t[stamp(m)].position)
+                        for m in states if stamp(m) >= start and stamp(m) in ref_by_t])
+    err = np.abs(tracked[:, 0] - tracked[:, 1]).max(axis=0)
+    times, pos, vel, acc = validate_trajectory(
+        JOINTS, [TrajectoryPoint(t, p, v, a) for t, p, v, a in points], JOINTS)
+    plan = Trajectory(Q0, [0, 0], times, pos, vel, acc)
+    bound = sampled_data_error_bound(plan, period=0.01)
+    assert len(tracked) > 300 and (err <= bound).all(), (
+        f'tracking error {err} rad exceeds the derived bound {bound} rad')
+    # And the ROS loop is exactly the pure closed loop: same law, same 10 ms hold.
+    core = ControllerCore(JOINTS, ControlLaw('computed_torque', Gains(kp=KP, kd=KD), ARM,
+                                              (60.0, 20.0)))
+    core.trajectory = plan
+    sim = simulate(model=ARM, q0=Q0, qd0=[0, 0], duration=3.5, dt=1e-3, control_period=0.01,
+                   torque=lambda t, q, qd: core.update(t, q, qd).command.tau)
+    by_t = {round(stamp(m) - start, 6): m.position for m in states if stamp(m) >= start}
+    gap = max(np.abs(np.array(by_t[round(t, 6)]) - q).max()
+              for t, q in zip(sim.t[::10], sim.q[::10]) if round(t, 6) in by_t)
+    assert gap < 1e-9, f'ROS run differs from simulate() by {gap:.2e} rad'
+
+
+@pytest.mark.parametrize('label, msg', [
+    ('unknown joint', trajectory([(1.0, [0, 0])], names=['joint1', 'wrist'])),
+    ('no points', trajectory([])),
+    ('times not increasing', trajectory([(1.0, [0, 0]), (1.0, [0.1, 0])])),
+    ('length mismatch', trajectory([(1.0, [0, 0, 0])])),
+    ('non-finite', trajectory([(1.0, [math.nan, 0])])),
+])
+def test_an_invalid_trajectory_is_refused_and_the_arm_keeps_its_reference(
+        ros, suite, label, msg):
+    states, refs, pub = suite()
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    pub.publish(msg)
+    ros.wait_for(lambda: problems(diags, '/controller', 'rejected_trajectory'),
+                 what=f'refusal of the {label} trajectory')
+    t = stamp(states[-1])
+    run_until(ros, states, t + 0.5)
+    assert refs[-1].position == pytest.approx(Q0, abs=1e-12), 'reference unchanged'
+    assert states[-1].position == pytest.approx(Q0, abs=1e-9), 'arm still held'
+
+
+def test_controller_killed_then_restarted(ros, launch, suite):
+    states, _, _ = suite(sim_params={'command_timeout': 0.3})
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    controller = next(p for p in launch.procs if p.name == 'controller')
+    controller.stop(signal.SIGKILL)  # a crash: no goodbye
+    ros.wait_for(lambda: problems(diags, '/simulator', 'command_timeout'), timeout=10,
+                 what="the simulator's command-timeout report")
+    t_kill = stamp(states[-1])
+    ros.wait_for(lambda: stamp(states[-1]) > t_kill + 0.3 and
+                 list(states[-1].effort) == [0.0, 0.0], timeout=10,
+                 what='zero torque, time still running')
+    fallen = np.array(states[-1].position)
+    assert np.abs(fallen - Q0).max() > 1e-3, 'without control the arm falls'
+    launch('controller', params_file=CONFIG)
+    ros.wait_for(lambda: abs(states[-1].effort[0]) > 1.0, timeout=30,
+                 what='commands from the restarted controller')
+    t = stamp(states[-1])
+    run_until(ros, states, t + 3.0)
+    assert np.abs(states[-1].velocity).max() < 1e-3, 'control resumed: the arm is held again'
