@@ -75,6 +75,9 @@ SIM_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('real_time_factor', 'double', 1.0,
               'Simulated seconds per wall second in real_time mode', 'x', minimum=0.0,
               strict_min=True, maximum=1000.0),
+    ParamSpec('pause_at', 'double', -1.0,
+              'Simulated time at which the simulation pauses (state held, commands kept); '
+              'set it later, or negative, to resume. Negative = never', 's', maximum=1e9),
     ParamSpec('velocity_limit', 'double', 1000.0,
               'Any joint speed above this counts as divergence: integration stops and the '
               'last good state is held until reset', 'rad/s', minimum=0.0, strict_min=True,
@@ -143,7 +146,7 @@ class SimulatorNode(Node):
         self.timed_out = False
         self.last_command_wall = time.monotonic()
         self.last_publish_wall = 0.0
-        self.awaiting_command = False
+        self.pending_answer = False  # lockstep: a command for the current state is held
         self.anchor: tuple[int, int] | None = None  # (wall ns, sim ns) for real-time pacing
         self.window = (time.monotonic(), 0)
         self.achieved_rtf = 0.0
@@ -181,8 +184,10 @@ class SimulatorNode(Node):
             self.core.q0[:], self.core.qd0[:] = q0, qd0
         if 'real_time_factor' in changed:
             self._make_rt_timer()
-        if 'timing_mode' in changed or 'real_time_factor' in changed:
+        if 'timing_mode' in changed or 'real_time_factor' in changed or 'pause_at' in changed:
             self.anchor = None
+        if 'pause_at' in changed and not self.paused and self.pending_answer:
+            self._lockstep_advance()
         self.get_logger().info(f'parameters changed: {changed}')
 
     def _make_rt_timer(self) -> None:
@@ -198,16 +203,30 @@ class SimulatorNode(Node):
         return self.params['timing_mode']
 
     def free_running(self) -> bool:
-        return self.mode == 'as_fast_as_possible'
+        return self.mode == 'as_fast_as_possible' and not self.paused
 
     def _real_time_paced(self) -> bool:
         return self.mode == 'real_time' or (self.mode == 'lockstep' and self.timed_out)
 
-    def advance(self) -> None:
+    @property
+    def paused(self) -> bool:
+        pause_at = self.params['pause_at']
+        return pause_at >= 0 and self.core.time_ns >= round(pause_at * 1e9)
+
+    def advance(self) -> bool:
+        """One control period, unless paused; True if time moved."""
+        if self.paused:
+            return False
         was_diverged = self.core.diverged
         self.core.advance()
         if self.core.diverged and not was_diverged:
             self.diag.problem('diverged', self.core.diverged, 'ERROR')
+        return True
+
+    def _lockstep_advance(self) -> None:
+        self.pending_answer = not self.advance()
+        if not self.pending_answer:
+            self.publish_state()
 
     def _on_rt_tick(self) -> None:
         if not self._real_time_paced():
@@ -217,23 +236,27 @@ class SimulatorNode(Node):
             self.anchor = (now, self.core.time_ns)
         target = self.anchor[1] + (now - self.anchor[0]) * self.params['real_time_factor']
         period = self.core.period_ns
+        moved = False
         for _ in range(5):
-            if self.core.time_ns + period > target:
+            if self.core.time_ns + period > target or not self.advance():
                 break
-            self.advance()
-        if self.core.time_ns + period <= target:
+            moved = True
+        if self.paused:
+            self.anchor = None
+        elif self.core.time_ns + period <= target:
             behind = (target - self.core.time_ns) * 1e-9
             self.diag.problem('overrun', f'cannot keep up with real_time_factor '
                               f"{self.params['real_time_factor']:g}: {behind:.3f} s of "
                               f'simulated time behind; continuing from here (achieved '
                               f'{self.achieved_rtf:.2f}x)')
             self.anchor = (now, self.core.time_ns)
-        self.publish_state()
+        if moved:
+            self.publish_state()
 
     def step_free(self) -> None:
         """One control period in as_fast_as_possible mode."""
-        self.advance()
-        self.publish_state()
+        if self.advance():
+            self.publish_state()
 
     def _on_command(self, msg: Float64MultiArray) -> None:
         answers = parse_answer_tag(msg.layout.dim[0].label) if msg.layout.dim else None
@@ -258,8 +281,7 @@ class SimulatorNode(Node):
             self.timed_out = False
             self.get_logger().info('effort commands resumed')
         if self.mode == 'lockstep':
-            self.advance()
-            self.publish_state()
+            self._lockstep_advance()
 
     def publish_state(self) -> None:
         view = self.core.joint_view()
@@ -272,7 +294,6 @@ class SimulatorNode(Node):
         clock.clock = msg.header.stamp
         self.clock_pub.publish(clock)
         self.last_publish_wall = time.monotonic()
-        self.awaiting_command = True
 
     def _housekeeping(self) -> None:
         now = time.monotonic()
@@ -284,7 +305,7 @@ class SimulatorNode(Node):
             self.core.clear_command()
             self.diag.problem('command_timeout', f'no valid effort command for {timeout:g} s: '
                               'torque set to zero until commands return')
-        if (self.mode == 'lockstep' and not self.timed_out
+        if (self.mode == 'lockstep' and not self.timed_out and not self.paused
                 and now - self.last_publish_wall > HEARTBEAT):
             self.publish_state()
         t0, s0 = self.window
@@ -299,6 +320,8 @@ class SimulatorNode(Node):
             level, message = 'ERROR', core.diverged
         elif self.timed_out:
             level, message = 'WARN', 'command timeout: applying zero torque'
+        elif self.paused:
+            level, message = 'OK', f'paused at t={core.time:.3f} s (pause_at)'
         else:
             level, message = 'OK', f'running ({self.mode})'
         self.diag.set(level, message, sim_time=f'{core.time:.3f}', timing_mode=self.mode,
