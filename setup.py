@@ -42,6 +42,7 @@ setup(
         'console_scripts': [
             'simulator = arm_dynamics.simulator_node:main',
             'controller = arm_control.controller_node:main',
+            'planner = arm_planner.planner_node:main',
             'arm-sim = arm_sim.cli:main',
         ],
     },

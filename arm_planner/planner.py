@@ -1,0 +1,605 @@
+"""Goal poses to torque-feasible joint trajectories for the 2-R arm (no rclpy).
+
+Two tasks, as in the lecture:
+
+* :func:`plan_regulation` -- reach the goal point: its joint angles as a set point (one
+  trajectory point), or a synchronised joint-space point-to-point profile (both joints
+  start and stop together: ``q(t) = q0 + (qf - q0) s(t)``).
+* :func:`plan_straight_line` -- move the end effector from where it is to the goal on the
+  straight segment: ``x(t) = xs + (xf - xs) s(t)``; every trajectory point carries
+  ``q = IK(x)``, ``q' = J^-1 x'`` and ``q'' = J^-1 (x'' - J' q')``.
+
+:func:`plan_goal` dispatches on :class:`PlannerSettings` (what the ``planner`` node calls).
+
+Sampling rule (straight line)
+-----------------------------
+The controller interpolates between points with quintics in ``q`` (value, velocity and
+acceleration at both ends: :class:`arm_control.trajectory.Trajectory`). The points are
+placed adaptively in normalised time ``tau = t / T``: start with 8 equal segments (plus
+the trapezoid's acceleration breaks, each as a pair of points ``BREAK_GAP`` apart in
+``tau`` so that the acceleration jump sits inside a tiny segment instead of spoiling its
+neighbours); interpolate each segment exactly as the controller does, check the distance
+of the forward kinematics from the segment at ``CHECK_POINTS`` interior times per segment,
+and halve every segment that deviates more than half the tolerance; repeat until none
+does. Quintic Hermite interpolation is invariant under uniform time scaling, so the
+placement holds for any duration (and survives stretching). The finished trajectory is
+then checked once more at 1 ms steps (the test's criterion); the worst deviation is
+reported in :attr:`Plan.max_line_deviation`.
+
+Torque feasibility
+------------------
+Along a path fixed in ``tau``, the joint torque at duration ``T`` is, with ``u = 1 / T``,
+``tau(u) = u^2 (D q_tautau + C(q, q_tau) q_tau) + u B q_tau + g(q)``: quadratic in ``u``
+with the gravity term independent of the duration. The three coefficient arrays come from
+two batched :meth:`TwoLinkArm.inverse_dynamics` calls (``u = 0`` and ``u = 1``) and
+:meth:`TwoLinkArm.damping_torque`, on a grid of ``tau`` (the trajectory points, 1001
+uniform points and both sides of every acceleration break). First ``u = 0`` (gravity
+alone, infinitely slow) is checked: if it exceeds the limits no duration fits and the plan
+is refused. Otherwise, if the requested duration exceeds the limits, bisection on ``u``
+between ``0`` (feasible) and ``1 / T_requested`` (infeasible) keeps a feasible and an
+infeasible end until they differ by less than ``STRETCH_TOLERANCE`` (0.5%); the feasible
+end is the stretched duration (policy ``stretch``), or the plan is refused naming it
+(policy ``refuse``). The bracket is valid whether or not the peak torque is monotonic in
+the duration, so a plan returned is always within the limits and an infeasible duration
+lies within 0.5% below it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from arm_control.trajectory import Trajectory
+from arm_dynamics.two_link import TwoLinkArm
+from arm_planner.kinematics import (
+    PlanningError,
+    abs_sin_q2,
+    check_point,
+    elbow_of,
+    inverse_kinematics,
+    nearest_equivalent,
+)
+from arm_planner.time_scaling import KINDS, TimeScaling, from_limits
+
+MODES = ('regulation', 'straight_line')
+PROFILES = ('set_point', 'synchronized')
+FEASIBILITY = ('stretch', 'refuse')
+ELBOW_CHOICES = ('up', 'down', 'keep')
+LINE_TOLERANCE = 1e-4     # m: controller-interpolated path vs the line
+INITIAL_SEGMENTS = 8
+CHECK_POINTS = 7          # interior check times per segment while refining
+BREAK_GAP = 1e-4          # tau: width of the segment holding an acceleration jump
+MAX_POINTS = 20000
+STRETCH_TOLERANCE = 0.005  # relative gap between feasible and infeasible durations
+EVAL_POINTS = 1001
+MIN_LENGTH = 1e-9         # m (line) / rad (joint move): shorter counts as no motion
+VERIFY_STEP = 0.001       # s: final check of the interpolated line
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A planned motion and its predicted torque.
+
+    Attributes
+    ----------
+    mode : 'regulation' or 'straight_line'
+    profile : 'set_point', 'synchronized' (regulation) or 'line'
+    times : (K,) s -- time from start of each point; ``times[0] == 0``.
+    q, qd, qdd : (K, 2) rad, rad/s, rad/s^2 -- desired joint state at each point.
+    ee_path : (K, 2) m -- forward kinematics of ``q``.
+    duration : s -- ``times[-1]`` (0 for a set point).
+    peak_torque : (2,) N m -- largest predicted ``|tau|`` per joint (inverse dynamics of
+        the planner's model along the plan; for a set point the holding torque at the
+        goal).
+    margin : (2,) N m -- ``effort_limits - peak_torque`` (>= 0 for every returned plan).
+    stretched_from : s or None -- the requested duration if the plan was slowed down to
+        fit the limits.
+    messages : human-readable notes (how the duration was chosen, stretching, ...).
+    elbow : 'up' or 'down' -- branch of the final configuration.
+    ee_start : (2,) m -- end-effector position when the plan was made.
+    goal : (2,) m
+    time_scaling : the scaling used (None for a set point).
+    ee_velocity, ee_acceleration : (K, 2) m/s, m/s^2 -- ``J q'`` and its derivative.
+    max_line_deviation : m or None -- straight line: worst distance from the segment of
+        the controller-interpolated path, checked at 1 ms steps.
+    """
+
+    mode: str
+    profile: str
+    times: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    ee_path: np.ndarray
+    duration: float
+    peak_torque: np.ndarray
+    margin: np.ndarray
+    stretched_from: float | None
+    messages: tuple[str, ...]
+    elbow: str
+    ee_start: np.ndarray
+    goal: np.ndarray
+    time_scaling: TimeScaling | None = None
+    ee_velocity: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    ee_acceleration: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    max_line_deviation: float | None = None
+
+    @property
+    def display_path(self) -> np.ndarray:
+        """(M, 2) m: the end-effector path to show (a set point: start and goal)."""
+        if self.profile == 'set_point':
+            return np.vstack([self.ee_start, self.ee_path])
+        return self.ee_path
+
+    def summary(self, effort_limits=None) -> str:
+        """One line: mode, duration, peak torque vs limits, stretched or not."""
+        lim = ''
+        if effort_limits is not None:
+            lim = f' / limits {_fmt(effort_limits, 1)}'
+        stretch = (f', stretched from {self.stretched_from:.3f} s'
+                   if self.stretched_from is not None else ', not stretched')
+        kind = f' {self.time_scaling.kind}' if self.time_scaling else ''
+        return (f'{self.mode} ({self.profile}{kind}, elbow {self.elbow}) to '
+                f'({self.goal[0]:.4f}, {self.goal[1]:.4f}) m: {self.duration:.3f} s, '
+                f'{len(self.times)} points, peak torque {_fmt(self.peak_torque, 2)}{lim} N m'
+                f'{stretch}')
+
+
+@dataclass(frozen=True)
+class PlannerSettings:
+    """Everything :func:`plan_goal` needs besides the arm, its limits and the state.
+
+    Units: ``duration`` s (0: derive from the speed limits), ``max_speed`` m/s,
+    ``max_acceleration`` m/s^2, ``joint_max_velocity`` rad/s, ``joint_max_acceleration``
+    rad/s^2, ``reach_margin`` m, ``singularity_margin`` on ``|sin q2|``, ``line_tolerance``
+    m. See the ``planner`` node's parameters for the meaning of each.
+    """
+
+    mode: str = 'regulation'
+    elbow: str = 'keep'
+    time_scaling: str = 'quintic'
+    duration: float = 0.0
+    max_speed: float = 0.5
+    max_acceleration: float = 1.0
+    joint_max_velocity: float = 1.5
+    joint_max_acceleration: float = 3.0
+    regulation_profile: str = 'set_point'
+    feasibility: str = 'stretch'
+    reach_margin: float = 0.01
+    singularity_margin: float = 0.1
+    line_tolerance: float = LINE_TOLERANCE
+
+
+def make_arm(robot: dict) -> TwoLinkArm:
+    """The planner's model from robot parameters (the ROBOT_PARAMS names; extra keys are
+    ignored)."""
+    return TwoLinkArm(**{k: robot[k] for k in (
+        'link_lengths', 'com_distances', 'link_masses', 'link_inertias', 'gravity',
+        'joint_damping')})
+
+
+def plan_goal(arm: TwoLinkArm, effort_limits, q_current, goal,
+              settings: PlannerSettings) -> Plan:
+    """Plan per ``settings.mode``: :func:`plan_regulation` or :func:`plan_straight_line`.
+
+    Parameters
+    ----------
+    arm : the planner's model.
+    effort_limits : (2,) N m, > 0
+    q_current : (2,) rad -- measured joint positions (the plan starts here, at rest).
+    goal : (2,) m -- end-effector target in the base frame.
+    settings : PlannerSettings
+
+    Raises
+    ------
+    PlanningError
+        With the reason, naming the numbers.
+    """
+    s = settings
+    common = dict(elbow=s.elbow, time_scaling=s.time_scaling, duration=s.duration,
+                  feasibility=s.feasibility, reach_margin=s.reach_margin,
+                  singularity_margin=s.singularity_margin)
+    if s.mode == 'regulation':
+        return plan_regulation(arm, effort_limits, q_current, goal,
+                               profile=s.regulation_profile,
+                               joint_max_velocity=s.joint_max_velocity,
+                               joint_max_acceleration=s.joint_max_acceleration, **common)
+    if s.mode == 'straight_line':
+        return plan_straight_line(arm, effort_limits, q_current, goal, max_speed=s.max_speed,
+                                  max_acceleration=s.max_acceleration,
+                                  tolerance=s.line_tolerance, **common)
+    raise ValueError(f"mode must be one of {', '.join(MODES)}, got {s.mode!r}")
+
+
+# ---------------------------------------------------------------------- regulation
+def plan_regulation(arm: TwoLinkArm, effort_limits, q_current, goal, *, elbow: str = 'keep',
+                    profile: str = 'set_point', time_scaling: str = 'quintic',
+                    duration: float = 0.0, joint_max_velocity=1.5,
+                    joint_max_acceleration=3.0, feasibility: str = 'stretch',
+                    reach_margin: float = 0.01, singularity_margin: float = 0.1) -> Plan:
+    """Reach ``goal`` in joint space.
+
+    Parameters
+    ----------
+    arm : TwoLinkArm
+    effort_limits : (2,) N m
+    q_current : (2,) rad
+    goal : (2,) m
+    elbow : 'up', 'down' or 'keep' (the branch of ``q_current``) -- see
+        :mod:`arm_planner.kinematics`. Each goal joint angle is taken within pi of the
+        current one (shortest motion; the arm has no joint position limits).
+    profile : 'set_point' (one point at t = 0: the goal angles) or 'synchronized'
+        (``q0 + (qf - q0) s(t)``, both joints start and stop together).
+    time_scaling : 'quintic' or 'trapezoidal' (synchronized only).
+    duration : s -- 0: the shortest duration meeting ``joint_max_velocity`` [rad/s] and
+        ``joint_max_acceleration`` [rad/s^2] (scalars or per joint) on the slowest joint.
+    feasibility : 'stretch' or 'refuse' -- what to do when the torque would exceed the
+        limits (a set point cannot be stretched: it is refused only if holding the goal
+        against gravity exceeds them).
+    reach_margin : m; singularity_margin : on ``|sin q2|`` -- goal checks.
+
+    Returns
+    -------
+    Plan
+    """
+    limits, q_current, goal = _common_inputs(effort_limits, q_current, goal)
+    _choice('profile', profile, PROFILES)
+    _choice('time_scaling', time_scaling, KINDS)
+    _choice('feasibility', feasibility, FEASIBILITY)
+    branch = _branch(elbow, q_current)
+    check_point(arm.link_lengths, goal, reach_margin, singularity_margin)
+    q_goal = nearest_equivalent(inverse_kinematics(arm.link_lengths, goal, branch), q_current)
+    ee_start = arm.forward_kinematics(q_current)
+    delta = q_goal - q_current
+    if profile == 'set_point' or np.abs(delta).max() < MIN_LENGTH:
+        note = ('already at the goal: holding it' if profile == 'synchronized' else
+                'set point: the trajectory is the goal angles at t = 0; the predicted '
+                'torque is the holding (gravity) torque at the goal, the transient depends '
+                "on the controller's gains")
+        return _set_point(arm, limits, q_goal, goal, ee_start, branch, 'regulation', note)
+    vmax = _positive_pair('joint_max_velocity', joint_max_velocity)
+    amax = _positive_pair('joint_max_acceleration', joint_max_acceleration)
+    messages = []
+    if duration > 0.0:
+        scaling = TimeScaling(time_scaling, float(duration))
+        messages.append(f'duration {duration:g} s as requested')
+    else:
+        moved = np.abs(delta)
+        scaling = from_limits(time_scaling, float((moved / vmax).max()),
+                              float((moved / amax).max()))
+        messages.append(f'duration {scaling.duration:.3f} s from joint_max_velocity '
+                        f'{_fmt(vmax, 3)} rad/s and joint_max_acceleration {_fmt(amax, 3)} '
+                        'rad/s^2 on the slowest joint')
+
+    def states(tau):
+        s, ds, dds = scaling.normalised(tau)
+        return (q_current + s[:, None] * delta, ds[:, None] * delta, dds[:, None] * delta)
+
+    knots = _initial_knots(scaling, 50)
+    return _finish(arm, limits, 'regulation', 'synchronized', branch, ee_start, goal,
+                   scaling, knots, states, feasibility, messages, line=None)
+
+
+# ---------------------------------------------------------------------- straight line
+def plan_straight_line(arm: TwoLinkArm, effort_limits, q_current, goal, *,
+                       elbow: str = 'keep', time_scaling: str = 'quintic',
+                       duration: float = 0.0, max_speed: float = 0.5,
+                       max_acceleration: float = 1.0, feasibility: str = 'stretch',
+                       reach_margin: float = 0.01, singularity_margin: float = 0.1,
+                       tolerance: float = LINE_TOLERANCE) -> Plan:
+    """Move the end effector on the straight segment from where it is to ``goal``.
+
+    Parameters
+    ----------
+    arm : TwoLinkArm
+    effort_limits : (2,) N m
+    q_current : (2,) rad -- the line starts at its forward kinematics, at rest.
+    goal : (2,) m
+    elbow : 'up', 'down' or 'keep'. The branch cannot change along a line (that would
+        pass the stretched/folded singularity): asking for the other one is refused.
+    time_scaling : 'quintic' or 'trapezoidal'.
+    duration : s -- 0: the shortest duration with Cartesian speed <= ``max_speed`` [m/s]
+        and acceleration <= ``max_acceleration`` [m/s^2]. A trapezoid with a given
+        duration accelerates for the first third and decelerates for the last.
+    feasibility : 'stretch' or 'refuse'.
+    reach_margin : m; singularity_margin : minimum ``|sin q2|`` anywhere on the line.
+    tolerance : m -- the controller-interpolated path must stay this close to the line.
+
+    Returns
+    -------
+    Plan
+
+    Raises
+    ------
+    PlanningError
+        Goal unreachable/singular, line through or near a singularity, elbow flip
+        needed, torque infeasible (per policy), or sampling cannot meet ``tolerance``.
+    """
+    limits, q_current, goal = _common_inputs(effort_limits, q_current, goal)
+    _choice('time_scaling', time_scaling, KINDS)
+    _choice('feasibility', feasibility, FEASIBILITY)
+    current = elbow_of(q_current)
+    branch = _branch(elbow, q_current)
+    lengths = arm.link_lengths
+    check_point(lengths, goal, reach_margin, singularity_margin)
+    if branch != current:
+        raise PlanningError(
+            f'a straight line cannot flip the elbow: the arm is elbow-{current} now (q2 = '
+            f'{q_current[1]:.4f} rad) and elbow {branch!r} was requested; the flip passes '
+            "the stretched/folded singularity. Use mode regulation, or elbow 'keep'")
+    start = arm.forward_kinematics(q_current)
+    s_now = abs(math.sin(q_current[1]))
+    if s_now < singularity_margin:
+        raise PlanningError(
+            f'the start configuration q = ({q_current[0]:.4f}, {q_current[1]:.4f}) rad is '
+            f'too near a singularity: |sin q2| = {s_now:.4f} < singularity_margin '
+            f'{singularity_margin:g}; a straight line cannot start there')
+    delta = goal - start
+    length = float(np.hypot(*delta))
+    if length < MIN_LENGTH:
+        return _set_point(arm, limits, q_current, goal, start, branch, 'straight_line',
+                          f'already at the goal ({length:.2e} m away): holding it')
+    _check_line(lengths, start, goal, reach_margin, singularity_margin)
+    messages = []
+    if duration > 0.0:
+        scaling = TimeScaling(time_scaling, float(duration))
+        messages.append(f'duration {duration:g} s as requested')
+    else:
+        if not (max_speed > 0.0 and max_acceleration > 0.0):
+            raise PlanningError(f'max_speed {max_speed!r} m/s and max_acceleration '
+                                f'{max_acceleration!r} m/s^2 must be > 0 when duration is 0')
+        scaling = from_limits(time_scaling, length / max_speed, length / max_acceleration)
+        messages.append(f'duration {scaling.duration:.3f} s from max_speed {max_speed:g} m/s '
+                        f'and max_acceleration {max_acceleration:g} m/s^2 over '
+                        f'{length:.4f} m')
+
+    def states(tau):
+        # The joint path is unwrapped along a dense grid (no joint turns pi between its
+        # neighbours) and starts at q_current's whole turns.
+        dense, index = np.unique(np.concatenate([np.linspace(0.0, 1.0, 1025), tau]),
+                                 return_inverse=True)
+        s = scaling.normalised(dense)[0]
+        q = np.unwrap(inverse_kinematics(lengths, start + s[:, None] * delta, branch), axis=0)
+        q = (q + 2.0 * np.pi * np.round((q_current - q[0]) / (2.0 * np.pi)))[index[1025:]]
+        s, ds, dds = scaling.normalised(tau)
+        return _joint_states(arm, q, ds[:, None] * delta, dds[:, None] * delta)
+
+    line = (start, goal, tolerance)
+    knots = _line_knots(arm, scaling, states, start, goal, tolerance)
+    messages.append(f'{len(knots)} points placed adaptively (start {INITIAL_SEGMENTS} '
+                    f'segments, halve any whose interpolated path leaves the line by more '
+                    f'than {tolerance / 2 * 1e3:g} mm)')
+    return _finish(arm, limits, 'straight_line', 'line', branch, start, goal, scaling, knots,
+                   states, feasibility, messages, line=line)
+
+
+# ---------------------------------------------------------------------- internals
+def _fmt(values, digits: int) -> str:
+    return '[' + ', '.join(f'{float(v):.{digits}f}' for v in np.ravel(values)) + ']'
+
+
+def _choice(name: str, value: str, choices: tuple[str, ...]) -> None:
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {', '.join(choices)}, got {value!r}")
+
+
+def _positive_pair(name: str, value) -> np.ndarray:
+    v = np.broadcast_to(np.asarray(value, dtype=float), (2,)).copy()
+    if not (np.isfinite(v).all() and (v > 0).all()):
+        raise ValueError(f'{name} must be > 0, got {np.ravel(value).tolist()}')
+    return v
+
+
+def _common_inputs(effort_limits, q_current, goal) -> tuple[np.ndarray, ...]:
+    limits = _positive_pair('effort_limits', effort_limits)
+    q = np.asarray(q_current, dtype=float)
+    if q.shape != (2,) or not np.isfinite(q).all():
+        raise PlanningError(f'the current joint positions must be two finite numbers, got '
+                            f'{q.ravel().tolist()}')
+    p = np.asarray(goal, dtype=float)
+    if p.shape != (2,) or not np.isfinite(p).all():
+        raise PlanningError(f'goal must be two finite numbers (x, y) in m, got '
+                            f'{p.ravel().tolist()}')
+    return limits, q, p
+
+
+def _branch(elbow: str, q_current: np.ndarray) -> str:
+    _choice('elbow', elbow, ELBOW_CHOICES)
+    return elbow_of(q_current) if elbow == 'keep' else elbow
+
+
+def _check_line(lengths, start, goal, reach_margin: float, singularity_margin: float) -> None:
+    """Refuse a segment that leaves the reachable annulus or nears a singularity.
+
+    ``|sin q2|`` depends on the distance ``r`` from the base only and is smallest at the
+    ends of the annulus, so along a segment its minimum is at the point nearest the base
+    or at the farther end.
+    """
+    l1, l2 = lengths
+    d = goal - start
+    s_near = float(np.clip(-(start @ d) / (d @ d), 0.0, 1.0))
+    near = start + s_near * d
+    r_near = float(np.hypot(*near))
+    r_far = max(float(np.hypot(*start)), float(np.hypot(*goal)))
+    where = (f'the straight line from ({start[0]:.4f}, {start[1]:.4f}) to '
+             f'({goal[0]:.4f}, {goal[1]:.4f}) m')
+    inner = abs(l1 - l2) + reach_margin
+    if r_near < inner:
+        raise PlanningError(
+            f'{where} passes r = {r_near:.4f} m from the base at ({near[0]:.4f}, '
+            f'{near[1]:.4f}) m, inside |l1 - l2| + reach_margin = {inner:.4f} m')
+    for r, label in ((r_near, 'nearest the base'), (r_far, 'farthest from the base')):
+        s = float(abs_sin_q2(lengths, r))
+        if s < singularity_margin:
+            raise PlanningError(
+                f'{where} passes too near a singularity: |sin q2| = {s:.4f} < '
+                f'singularity_margin {singularity_margin:g} at its point {label} '
+                f'(r = {r:.4f} m); use mode regulation or another goal')
+
+
+def _jdot_qd(arm: TwoLinkArm, q, qd) -> np.ndarray:
+    """``J'(q, q') q'`` (K, 2): the centripetal part of the end-effector acceleration."""
+    l1, l2 = arm.link_lengths
+    w1, w12 = qd[:, 0], qd[:, 0] + qd[:, 1]
+    q12 = q[:, 0] + q[:, 1]
+    return -np.stack([l1 * np.cos(q[:, 0]) * w1**2 + l2 * np.cos(q12) * w12**2,
+                      l1 * np.sin(q[:, 0]) * w1**2 + l2 * np.sin(q12) * w12**2], -1)
+
+
+def _joint_states(arm: TwoLinkArm, q, xd, xdd) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``q' = J^-1 x'``, ``q'' = J^-1 (x'' - J' q')`` for (K, 2) arrays (any time unit)."""
+    jac = arm.jacobian(q)
+    det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
+
+    def solve(b):
+        return np.stack([(jac[:, 1, 1] * b[:, 0] - jac[:, 0, 1] * b[:, 1]) / det,
+                         (jac[:, 0, 0] * b[:, 1] - jac[:, 1, 0] * b[:, 0]) / det], -1)
+
+    qd = solve(xd)
+    return q, qd, solve(xdd - _jdot_qd(arm, q, qd))
+
+
+def _initial_knots(scaling: TimeScaling, segments: int) -> np.ndarray:
+    """``segments`` equal steps in tau plus each break as a pair ``BREAK_GAP`` apart."""
+    tau = np.linspace(0.0, 1.0, segments + 1)
+    extra = [b for br in scaling.breaks for b in (br, br + BREAK_GAP)]
+    tau = np.union1d(tau, extra)
+    # Drop points closer than the break gap to a break pair (except the pair itself).
+    keep = np.ones(len(tau), bool)
+    for br in scaling.breaks:
+        close = (np.abs(tau - br) < 2 * BREAK_GAP) & (tau != br) & (tau != br + BREAK_GAP)
+        keep &= ~close
+    return tau[keep]
+
+
+def _segment_distance(points, start, goal) -> np.ndarray:
+    """Distance [m] of points (..., 2) from the segment start-goal."""
+    d = goal - start
+    s = np.clip(((points - start) @ d) / (d @ d), 0.0, 1.0)
+    return np.hypot(*np.moveaxis(points - start - s[..., None] * d, -1, 0))
+
+
+def _line_knots(arm: TwoLinkArm, scaling: TimeScaling, states, start, goal,
+                tolerance: float) -> np.ndarray:
+    """Adaptive knot placement in tau (see the module docstring)."""
+    tau = _initial_knots(scaling, INITIAL_SEGMENTS)
+    frac = np.arange(1, CHECK_POINTS + 1) / (CHECK_POINTS + 1)
+    while len(tau) <= MAX_POINTS:
+        q, qd, qdd = states(tau)
+        traj = Trajectory(q[0], np.zeros(2), tau, q, qd, qdd)
+        h = np.diff(tau)
+        t = (tau[:-1, None] + h[:, None] * frac).ravel()
+        dev = _segment_distance(arm.forward_kinematics(traj.sample_many(t)[0]), start, goal)
+        worst = dev.reshape(len(h), CHECK_POINTS).max(axis=1)
+        bad = (worst > 0.5 * tolerance) & (h > 4 * BREAK_GAP)
+        if not bad.any():
+            return tau
+        tau = np.union1d(tau, tau[:-1][bad] + 0.5 * h[bad])
+    raise PlanningError(f'cannot sample the line within {tolerance * 1e3:g} mm with '
+                        f'{MAX_POINTS} points')
+
+
+def _torque_terms(arm: TwoLinkArm, q, dq, ddq) -> tuple[np.ndarray, ...]:
+    """Coefficients of ``tau(u) = a u^2 + b u + c``, ``u = 1 / T`` [1/s], each (M, 2) N m."""
+    c = arm.inverse_dynamics(q, np.zeros_like(dq), np.zeros_like(ddq))
+    b = arm.damping_torque(dq)
+    a = arm.inverse_dynamics(q, dq, ddq) - b - c
+    return a, b, c
+
+
+def _load(terms, limits, u: float) -> float:
+    """Largest ``|tau| / limit`` over the grid and joints at ``u = 1 / T``."""
+    a, b, c = terms
+    return float((np.abs((a * u + b) * u + c) / limits).max())
+
+
+def _fit_duration(terms, limits, requested: float, policy: str, q_grid,
+                  messages: list[str]) -> tuple[float, float | None]:
+    """Duration that fits the effort limits (see the module docstring)."""
+    a, b, c = terms
+    if _load(terms, limits, 0.0) > 1.0:
+        k, j = np.unravel_index(np.argmax(np.abs(c) / limits), c.shape)
+        qk = q_grid[k]
+        raise PlanningError(
+            f'gravity alone exceeds the effort limits along the plan: holding q = '
+            f'({qk[0]:.4f}, {qk[1]:.4f}) rad needs {abs(c[k, j]):.2f} N m at joint {j + 1} > '
+            f'limit {limits[j]:g} N m; no duration fits')
+    if _load(terms, limits, 1.0 / requested) <= 1.0:
+        return requested, None
+    lo, hi = 0.0, 1.0 / requested  # u = 1/T: lo fits, hi does not
+    while hi - lo > STRETCH_TOLERANCE * lo:
+        mid = 0.5 * (lo + hi)
+        if _load(terms, limits, mid) <= 1.0:
+            lo = mid
+        else:
+            hi = mid
+    fitted = 1.0 / lo
+    peak = np.abs((a / requested + b) / requested + c).max(axis=0)
+    what = (f'at duration {requested:.3f} s the predicted peak torque {_fmt(peak, 2)} N m '
+            f'exceeds the limits {_fmt(limits, 1)} N m')
+    if policy == 'refuse':
+        raise PlanningError(f'{what}; the fastest duration that fits is {fitted:.3f} s '
+                            '(feasibility refuse)')
+    messages.append(f'stretched from {requested:.3f} s to {fitted:.3f} s: {what} '
+                    f'(bisection to {STRETCH_TOLERANCE:.1%})')
+    return fitted, requested
+
+
+def _finish(arm: TwoLinkArm, limits, mode: str, profile: str, branch: str, ee_start, goal,
+            scaling: TimeScaling, knots: np.ndarray, states, policy: str,
+            messages: list[str], line) -> Plan:
+    """Torque check (stretch/refuse), then the trajectory arrays at the final duration."""
+    grid = np.union1d(knots, np.linspace(0.0, 1.0, EVAL_POINTS))
+    qg, dqg, ddqg = states(grid)
+    terms = _torque_terms(arm, qg, dqg, ddqg)
+    duration, stretched_from = _fit_duration(terms, limits, scaling.duration, policy, qg,
+                                             messages)
+    scaling = scaling.with_duration(duration)
+    u = 1.0 / duration
+    tau_grid = arm.inverse_dynamics(qg, dqg * u, ddqg * u * u)
+    peak = np.abs(tau_grid).max(axis=0)
+    q, dq, ddq = states(knots)
+    times = knots * duration
+    times[0], times[-1] = 0.0, duration
+    qd, qdd = dq * u, ddq * u * u
+    jac = arm.jacobian(q)
+    xd = np.einsum('kij,kj->ki', jac, qd)
+    xdd = np.einsum('kij,kj->ki', jac, qdd) + _jdot_qd(arm, q, qd)
+    deviation = None
+    if line is not None:
+        start, end, tolerance = line
+        traj = Trajectory(q[0], np.zeros(2), times, q, qd, qdd)
+        t = np.linspace(0.0, duration, max(2, int(math.ceil(duration / VERIFY_STEP)) + 1))
+        deviation = float(_segment_distance(
+            arm.forward_kinematics(traj.sample_many(t)[0]), start, end).max())
+        if deviation > tolerance:
+            raise PlanningError(f'the interpolated line deviates {deviation * 1e3:.4f} mm > '
+                                f'{tolerance * 1e3:g} mm (sampling failed)')
+        messages.append(f'controller-interpolated path within {deviation * 1e6:.2f} um of '
+                        'the line (checked at 1 ms steps)')
+    return Plan(mode=mode, profile=profile, times=times, q=q, qd=qd, qdd=qdd,
+                ee_path=arm.forward_kinematics(q), duration=duration, peak_torque=peak,
+                margin=limits - peak, stretched_from=stretched_from,
+                messages=tuple(messages), elbow=branch, ee_start=np.asarray(ee_start),
+                goal=np.asarray(goal), time_scaling=scaling, ee_velocity=xd,
+                ee_acceleration=xdd, max_line_deviation=deviation)
+
+
+def _set_point(arm: TwoLinkArm, limits, q_goal, goal, ee_start, branch: str, mode: str,
+               note: str) -> Plan:
+    """A one-point plan holding ``q_goal``; refused if gravity there exceeds the limits."""
+    hold = np.abs(arm.gravity_vector(q_goal))
+    if (hold > limits).any():
+        j = int(np.argmax(hold / limits))
+        raise PlanningError(
+            f'holding the goal q = ({q_goal[0]:.4f}, {q_goal[1]:.4f}) rad against gravity '
+            f'needs {hold[j]:.2f} N m at joint {j + 1} > limit {limits[j]:g} N m')
+    q = np.asarray(q_goal, dtype=float)[None, :]
+    zero = np.zeros((1, 2))
+    return Plan(mode=mode, profile='set_point', times=np.zeros(1), q=q, qd=zero, qdd=zero,
+                ee_path=arm.forward_kinematics(q), duration=0.0, peak_torque=hold,
+                margin=limits - hold, stretched_from=None, messages=(note,), elbow=branch,
+                ee_start=np.asarray(ee_start), goal=np.asarray(goal), time_scaling=None,
+                ee_velocity=zero, ee_acceleration=zero)

@@ -1,0 +1,256 @@
+"""``planner`` node: goal poses in, torque-feasible joint trajectories out.
+
+Thin ROS shell around :func:`arm_planner.planner.plan_goal`: ``goal_pose``
+(geometry_msgs/PoseStamped) and ``joint_states`` in; ``arm_controller/joint_trajectory``
+(trajectory_msgs/JointTrajectory) and ``planner/path`` (nav_msgs/Path) out; refusals on
+``/diagnostics``. Every planner parameter can be changed at run time (validated); the robot
+parameters are read-only.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from builtin_interfaces.msg import Duration
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from arm_planner.kinematics import PlanningError
+from arm_planner.planner import (
+    ELBOW_CHOICES,
+    FEASIBILITY,
+    MODES,
+    PROFILES,
+    Plan,
+    PlannerSettings,
+    make_arm,
+    plan_goal,
+)
+from arm_planner.time_scaling import KINDS
+from arm_sim.params import ROBOT_PARAMS, ParamSpec
+from arm_sim.ros_common import (
+    ConfigError,
+    Diagnostics,
+    declare_parameters,
+    on_parameter_changes,
+    run_node,
+)
+
+SUMMARY = '''
+Plans the arm's motion to each goal_pose (geometry_msgs/PoseStamped: x, y of the
+end-effector target in the base frame; header.frame_id empty or base_frame; z and
+orientation are ignored) from the latest joint_states, and publishes it on
+arm_controller/joint_trajectory (trajectory_msgs/JointTrajectory, positions rad,
+velocities rad/s, accelerations rad/s^2; header.stamp zero = start on arrival) and
+planner/path (nav_msgs/Path of the end effector, frame base_frame).
+
+mode regulation: the goal's joint angles as a set point, or a synchronized joint-space
+profile (regulation_profile). mode straight_line: the end effector moves on the segment
+from where it is to the goal. The predicted joint torques (inverse dynamics of the robot
+parameters) are checked against effort_limits: too fast a plan is slowed down to the
+fastest duration that fits (feasibility stretch) or refused (feasibility refuse).
+Unreachable or near-singular goals, goals in another frame, non-finite goals and goals
+before any joint state are refused on /diagnostics; nothing is published for them.
+'''
+
+PLANNER_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec('mode', 'string', 'regulation', 'What a goal plans', choices=MODES),
+    ParamSpec('elbow', 'string', 'keep',
+              'Elbow branch of the goal configuration: up = q2 < 0, down = q2 > 0, keep = '
+              "the current configuration's (a straight line cannot change it)",
+              choices=ELBOW_CHOICES),
+    ParamSpec('time_scaling', 'string', 'quintic',
+              'Progress along the path over time (zero speed at both ends; quintic also '
+              'zero acceleration)', choices=KINDS),
+    ParamSpec('duration', 'double', 0.0,
+              'Motion duration; 0 = the shortest within max_speed/max_acceleration '
+              '(straight_line) or joint_max_velocity/joint_max_acceleration (synchronized)',
+              's', minimum=0.0, maximum=3600.0),
+    ParamSpec('max_speed', 'double', 0.5, 'Straight line: maximum end-effector speed', 'm/s',
+              minimum=0.0, strict_min=True, maximum=100.0),
+    ParamSpec('max_acceleration', 'double', 1.0,
+              'Straight line: maximum end-effector acceleration', 'm/s^2', minimum=0.0,
+              strict_min=True, maximum=1000.0),
+    ParamSpec('joint_max_velocity', 'double', 1.5,
+              'Synchronized regulation: maximum joint speed', 'rad/s', minimum=0.0,
+              strict_min=True, maximum=1000.0),
+    ParamSpec('joint_max_acceleration', 'double', 3.0,
+              'Synchronized regulation: maximum joint acceleration', 'rad/s^2', minimum=0.0,
+              strict_min=True, maximum=1e5),
+    ParamSpec('regulation_profile', 'string', 'set_point',
+              'Regulation: one point at the goal angles, or both joints moving together',
+              choices=PROFILES),
+    ParamSpec('feasibility', 'string', 'stretch',
+              'A plan whose predicted torque exceeds effort_limits is slowed down to the '
+              'fastest duration that fits (stretch) or refused (refuse)', choices=FEASIBILITY),
+    ParamSpec('reach_margin', 'double', 0.01,
+              'Goals must lie at least this far inside the reachable annulus '
+              '|l1 - l2| <= r <= l1 + l2', 'm', minimum=0.0, maximum=100.0),
+    ParamSpec('singularity_margin', 'double', 0.1,
+              'Minimum |sin q2| at the goal and along a straight line', '', minimum=0.0,
+              maximum=0.99),
+    ParamSpec('base_frame', 'string', 'base_link',
+              'Frame of goals (an empty frame_id means this one) and of planner/path'),
+)
+
+
+def settings_from(params: dict[str, Any]) -> PlannerSettings:
+    """The pure planner's settings from node parameter values."""
+    names = [f for f in PlannerSettings.__dataclass_fields__ if f in params]
+    return PlannerSettings(**{n: (float(params[n]) if isinstance(params[n], int)
+                                  and not isinstance(params[n], bool) else params[n])
+                              for n in names})
+
+
+def _duration(seconds: float) -> Duration:
+    sec = int(math.floor(seconds))
+    nanosec = int(round((seconds - sec) * 1e9))
+    if nanosec >= 1_000_000_000:
+        sec, nanosec = sec + 1, nanosec - 1_000_000_000
+    return Duration(sec=sec, nanosec=nanosec)
+
+
+def trajectory_message(plan: Plan, joint_names) -> JointTrajectory:
+    """JointTrajectory of ``plan`` (header.stamp zero: start on arrival)."""
+    msg = JointTrajectory(joint_names=list(joint_names))
+    for t, q, qd, qdd in zip(plan.times, plan.q, plan.qd, plan.qdd):
+        msg.points.append(JointTrajectoryPoint(
+            positions=q.tolist(), velocities=qd.tolist(), accelerations=qdd.tolist(),
+            time_from_start=_duration(float(t))))
+    return msg
+
+
+def path_message(plan: Plan, frame: str, stamp) -> Path:
+    """nav_msgs/Path of the planned end-effector path in ``frame``."""
+    msg = Path()
+    msg.header.frame_id = frame
+    msg.header.stamp = stamp
+    for x, y in plan.display_path:
+        pose = PoseStamped()
+        pose.header = msg.header
+        pose.pose.position.x, pose.pose.position.y = float(x), float(y)
+        pose.pose.orientation.w = 1.0
+        msg.poses.append(pose)
+    return msg
+
+
+class PlannerNode(Node):
+    """See the module docstring."""
+
+    def __init__(self) -> None:
+        super().__init__('planner')
+        p = declare_parameters(self, ROBOT_PARAMS + PLANNER_PARAMS)
+        try:
+            self.arm = make_arm(p)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        reason = self._validate(p)
+        if reason:
+            raise ConfigError(reason)
+        self.params = p
+        self.joint_names = list(p['joint_names'])
+        self.limits = np.array(p['effort_limits'], dtype=float)
+        self.q: np.ndarray | None = None
+        self.plans = 0
+        self.traj_pub = self.create_publisher(JointTrajectory,
+                                              'arm_controller/joint_trajectory', 10)
+        self.path_pub = self.create_publisher(Path, 'planner/path', 10)
+        self.create_subscription(JointState, 'joint_states', self._on_joint_state, 10)
+        self.create_subscription(PoseStamped, 'goal_pose', self._on_goal, 10)
+        self.diag = Diagnostics(self)
+        self.diag.set('OK', 'waiting for joint_states', plans=0)
+        on_parameter_changes(self, PLANNER_PARAMS, self._validate_change, self._apply_change)
+        self.get_logger().info(f"planner ready: mode {p['mode']}, effort limits "
+                               f'{self.limits.tolist()} N m, base frame {p["base_frame"]}')
+
+    # ------------------------------------------------------------------ parameters
+    def _validate(self, params: dict[str, Any]) -> str | None:
+        l1, l2 = params['link_lengths']
+        widest = min(l1, l2)  # half the annulus width: a margin beyond it leaves nothing
+        if params['reach_margin'] >= widest:
+            return (f"reach_margin {params['reach_margin']:g} m leaves no reachable goal: "
+                    f'it must be < min(l1, l2) = {widest:g} m')
+        return None
+
+    def _validate_change(self, changed: dict[str, Any]) -> str | None:
+        return self._validate({**self.params, **changed})
+
+    def _apply_change(self, changed: dict[str, Any]) -> None:
+        self.params.update(changed)
+        self.get_logger().info(f'parameters changed: {changed}')
+
+    # ------------------------------------------------------------------ callbacks
+    def _on_joint_state(self, msg: JointState) -> None:
+        try:
+            names = list(msg.name)
+            missing = [j for j in self.joint_names if j not in names]
+            if missing:
+                self.diag.problem('rejected_joint_state',
+                                  f'joint_states without joints {missing} (has {names})')
+                return
+            if len(msg.position) != len(names):
+                self.diag.problem('rejected_joint_state',
+                                  f'joint_states has {len(msg.position)} positions for '
+                                  f'{len(names)} names')
+                return
+            q = np.array([msg.position[names.index(j)] for j in self.joint_names], float)
+            if not np.isfinite(q).all():
+                self.diag.problem('rejected_joint_state',
+                                  f'joint_states has non-finite positions {q.tolist()}')
+                return
+            if self.q is None:
+                self.diag.set('OK', 'ready: waiting for goal_pose')
+            self.q = q
+        except Exception as exc:  # noqa: BLE001 -- never die on a message
+            self.diag.problem('internal_error', f'joint_states handling failed: {exc!r}',
+                              'ERROR')
+
+    def _on_goal(self, msg: PoseStamped) -> None:
+        try:
+            self._handle_goal(msg)
+        except Exception as exc:  # noqa: BLE001 -- never die on a message
+            self.diag.problem('internal_error', f'planning failed unexpectedly: {exc!r}',
+                              'ERROR')
+
+    def _handle_goal(self, msg: PoseStamped) -> None:
+        base = self.params['base_frame']
+        frame = msg.header.frame_id
+        if frame not in ('', base):
+            self.diag.problem('goal_wrong_frame', f'goal_pose refused: frame_id {frame!r} is '
+                              f'not the base frame {base!r} (nor empty); no transform is done')
+            return
+        goal = np.array([msg.pose.position.x, msg.pose.position.y], dtype=float)
+        if not np.isfinite(goal).all():
+            self.diag.problem('goal_not_finite', f'goal_pose refused: non-finite position '
+                              f'(x, y) = {goal.tolist()}')
+            return
+        if self.q is None:
+            self.diag.problem('goal_before_state', 'goal_pose refused: no joint_states received '
+                              'yet, so the start of the motion is unknown')
+            return
+        try:
+            plan = plan_goal(self.arm, self.limits, self.q, goal, settings_from(self.params))
+        except (PlanningError, ValueError) as exc:
+            self.diag.problem('goal_refused', f'goal_pose refused: {exc}')
+            return
+        self.traj_pub.publish(trajectory_message(plan, self.joint_names))
+        self.path_pub.publish(path_message(plan, base, self.get_clock().now().to_msg()))
+        self.plans += 1
+        line = plan.summary(self.limits)
+        self.get_logger().info(line)
+        self.diag.set('OK', f'last plan: {line}', plans=self.plans,
+                      last_plan_messages=' | '.join(plan.messages))
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(PlannerNode, prog='planner', summary=SUMMARY,
+                    specs=ROBOT_PARAMS + PLANNER_PARAMS, args=args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

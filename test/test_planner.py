@@ -1,0 +1,308 @@
+"""The ROS-free planner: inverse kinematics, time scalings, straight lines, regulation and
+torque feasibility (arm_planner)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from arm_control.trajectory import Trajectory
+from arm_dynamics import TwoLinkArm
+from arm_planner import (
+    PlannerSettings,
+    PlanningError,
+    TimeScaling,
+    elbow_of,
+    from_limits,
+    inverse_kinematics,
+    plan_goal,
+    plan_regulation,
+    plan_straight_line,
+)
+
+ARM = TwoLinkArm()  # the contract's default arm: l = (1.0, 0.8)
+L1, L2 = ARM.link_lengths
+LIMITS = np.array([60.0, 20.0])
+Q_START = np.array([-0.4, 1.2])  # the simulator's default initial position (elbow down)
+
+# (q_current, goal): lines across the workspace, one near the outer edge, one close to the
+# base, one whose shoulder angle crosses +-pi, one with the elbow up.
+LINES = [
+    (Q_START, (0.5, 1.0)),
+    (Q_START, (1.7 * math.cos(0.3), 1.7 * math.sin(0.3))),
+    (Q_START, (-0.1, 0.3)),
+    ((3.0, 0.5), (-1.2, -0.8)),
+    ((0.9, -1.4), (1.2, -0.5)),
+]
+
+
+def distance_to_segment(points: np.ndarray, a, b) -> np.ndarray:
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    d = b - a
+    s = np.clip(((points - a) @ d) / (d @ d), 0.0, 1.0)
+    return np.linalg.norm(points - a - s[:, None] * d, axis=1)
+
+
+def controller_samples(plan, step: float = 1e-3):
+    """What the controller's interpolation does with the plan, every ``step`` s."""
+    traj = Trajectory(plan.q[0], np.zeros(2), plan.times, plan.q, plan.qd, plan.qdd)
+    t = np.arange(0.0, plan.duration + step, step)
+    return t, traj.sample_many(t)
+
+
+# ---------------------------------------------------------------------- kinematics
+@pytest.mark.parametrize('elbow', ['up', 'down'])
+def test_ik_then_fk_is_the_identity_at_random_reachable_points(elbow):
+    rng = np.random.default_rng(7)
+    r = rng.uniform(abs(L1 - L2) + 1e-3, L1 + L2 - 1e-3, 2000)
+    phi = rng.uniform(-math.pi, math.pi, 2000)
+    p = np.stack([r * np.cos(phi), r * np.sin(phi)], -1)
+    q = inverse_kinematics(ARM.link_lengths, p, elbow)
+    assert np.abs(ARM.forward_kinematics(q) - p).max() < 1e-12
+    sign = np.sign(np.sin(q[:, 1]))
+    assert (sign == (1 if elbow == 'down' else -1)).all(), 'branch convention'
+    single = inverse_kinematics(ARM.link_lengths, p[0], elbow)
+    assert single.shape == (2,) and np.allclose(single, q[0], atol=0, rtol=0)
+
+
+def test_fk_then_ik_recovers_the_joint_angles():
+    rng = np.random.default_rng(8)
+    q = np.stack([rng.uniform(-math.pi, math.pi, 500), rng.uniform(0.05, math.pi - 0.05, 500)
+                  * rng.choice([-1.0, 1.0], 500)], -1)
+    for elbow, rows in (('down', q[:, 1] > 0), ('up', q[:, 1] < 0)):
+        back = inverse_kinematics(ARM.link_lengths, ARM.forward_kinematics(q[rows]), elbow)
+        wrapped = np.angle(np.exp(1j * (back - q[rows])))
+        assert np.abs(wrapped).max() < 1e-9
+
+
+def test_elbow_convention_down_is_q2_positive_and_elbow_below_when_reaching_along_x():
+    for elbow, below in (('down', True), ('up', False)):
+        q = inverse_kinematics(ARM.link_lengths, (1.2, 0.0), elbow)
+        elbow_y = L1 * math.sin(q[0])
+        assert (elbow_y < 0) == below and (q[1] > 0) == (elbow == 'down')
+        assert elbow_of(q) == elbow
+
+
+# ---------------------------------------------------------------------- time scalings
+SCALINGS = [TimeScaling('quintic', 2.0), TimeScaling('trapezoidal', 2.0),
+            from_limits('trapezoidal', 1.0, 0.1),   # cruises
+            from_limits('trapezoidal', 1.0, 4.0),   # triangular
+            from_limits('quintic', 1.0, 0.3)]
+
+
+@pytest.mark.parametrize('scaling', SCALINGS, ids=lambda s: f'{s.kind}-{s.blend:.3f}')
+def test_time_scalings_meet_their_end_conditions_and_progress_monotonically(scaling):
+    T = scaling.duration
+    s, sd, sdd = scaling.evaluate(np.array([0.0, T]))
+    assert s.tolist() == pytest.approx([0.0, 1.0], abs=1e-15)
+    assert sd.tolist() == pytest.approx([0.0, 0.0], abs=1e-15)
+    if scaling.kind == 'quintic':
+        assert sdd.tolist() == pytest.approx([0.0, 0.0], abs=1e-15)
+    t = np.linspace(0.0, T, 20001)
+    s, sd, sdd = scaling.evaluate(t)
+    assert (np.diff(s) >= 0).all() and (sd >= 0).all() and (sd[1:-1] > 0).all()
+    # Derivatives are consistent with s and the advertised peaks are attained.
+    assert np.gradient(s, t)[1:-1] == pytest.approx(sd[1:-1], abs=1e-4 * scaling.peak_speed)
+    assert sd.max() == pytest.approx(scaling.peak_speed, rel=1e-6)
+    assert np.abs(sdd).max() == pytest.approx(scaling.peak_acceleration, rel=1e-3)
+
+
+@pytest.mark.parametrize('kind', ['quintic', 'trapezoidal'])
+@pytest.mark.parametrize('v_time, a_time', [(1.0, 0.1), (1.0, 4.0)])
+def test_scaling_from_limits_is_the_fastest_within_the_limits(kind, v_time, a_time):
+    # Path length 1: max speed 1 / v_time, max acceleration 1 / a_time.
+    scaling = from_limits(kind, v_time, a_time)
+    speed_ok = scaling.peak_speed <= 1 / v_time * (1 + 1e-12)
+    accel_ok = scaling.peak_acceleration <= 1 / a_time * (1 + 1e-12)
+    assert speed_ok and accel_ok
+    at_speed = scaling.peak_speed == pytest.approx(1 / v_time)
+    at_accel = scaling.peak_acceleration == pytest.approx(1 / a_time)
+    assert at_speed or at_accel, 'one limit is active'
+
+
+# ---------------------------------------------------------------------- straight line
+@pytest.mark.parametrize('time_scaling', ['quintic', 'trapezoidal'])
+@pytest.mark.parametrize('q0, goal', LINES)
+def test_straight_line_points_lie_on_the_segment_and_the_controller_keeps_it(
+        q0, goal, time_scaling):
+    plan = plan_straight_line(ARM, LIMITS, q0, goal, time_scaling=time_scaling)
+    start = ARM.forward_kinematics(np.asarray(q0, float))
+    assert plan.mode == 'straight_line' and plan.times[0] == 0.0
+    assert (np.diff(plan.times) > 0).all() and plan.times[-1] == plan.duration
+    assert np.abs(plan.q[0] - q0).max() < 1e-12, 'starts from the current angles'
+    assert np.abs(np.diff(plan.q, axis=0)).max() < 1.0, 'no wrap-around jumps'
+    fk = ARM.forward_kinematics(plan.q)
+    assert np.abs(fk - plan.ee_path).max() < 1e-12
+    assert distance_to_segment(fk, start, goal).max() < 1e-9
+    assert np.abs(fk[0] - start).max() < 1e-9 and np.abs(fk[-1] - goal).max() < 1e-9
+    assert not plan.qd[0].any() and np.abs(plan.qd[-1]).max() < 1e-12, 'starts/ends at rest'
+    t, (q, _qd, _qdd) = controller_samples(plan)
+    deviation = distance_to_segment(ARM.forward_kinematics(q), start, goal)
+    assert deviation.max() < 1e-4, f'interpolated path leaves the line by {deviation.max()}'
+    assert plan.max_line_deviation == pytest.approx(deviation.max(), rel=0.05)
+    assert np.abs(ARM.forward_kinematics(q[-1]) - goal).max() < 1e-9
+
+
+@pytest.mark.parametrize('time_scaling', ['quintic', 'trapezoidal'])
+def test_line_joint_rates_are_the_inverse_jacobian_of_the_cartesian_rates(time_scaling):
+    q0, goal = LINES[0]
+    plan = plan_straight_line(ARM, LIMITS, q0, goal, time_scaling=time_scaling)
+    start = ARM.forward_kinematics(q0)
+    # x' and x'' straight from the time scaling, independent of the planner's arrays.
+    _, sd, sdd = plan.time_scaling.evaluate(plan.times)
+    xd = sd[:, None] * (np.asarray(goal) - start)
+    xdd = sdd[:, None] * (np.asarray(goal) - start)
+    jac = ARM.jacobian(plan.q)
+    qd_expected = np.linalg.solve(jac, xd[..., None])[..., 0]
+    assert np.abs(plan.qd - qd_expected).max() < 1e-9
+    # q'' = J^-1 (x'' - J' q'), J' q' by a central difference of J along q'.
+    eps = 1e-6
+    jdot_qd = np.einsum('kij,kj->ki', ARM.jacobian(plan.q + eps * plan.qd)
+                        - ARM.jacobian(plan.q - eps * plan.qd), plan.qd) / (2 * eps)
+    qdd_expected = np.linalg.solve(jac, (xdd - jdot_qd)[..., None])[..., 0]
+    assert np.abs(plan.qdd - qdd_expected).max() < 1e-5
+    assert np.abs(plan.ee_velocity - xd).max() < 1e-9
+
+
+def test_line_speed_and_acceleration_respect_the_limits():
+    q0, goal = LINES[0]
+    plan = plan_straight_line(ARM, LIMITS, q0, goal, time_scaling='trapezoidal',
+                              max_speed=0.4, max_acceleration=0.8)
+    assert plan.stretched_from is None
+    length = np.linalg.norm(np.asarray(goal) - ARM.forward_kinematics(q0))
+    assert plan.duration == pytest.approx(length / 0.4 + 0.4 / 0.8)
+    assert np.linalg.norm(plan.ee_velocity, axis=1).max() == pytest.approx(0.4)
+
+
+# ---------------------------------------------------------------------- regulation
+def test_set_point_regulation_is_the_goal_angles_with_the_holding_torque():
+    goal = (0.5, 1.0)
+    plan = plan_regulation(ARM, LIMITS, Q_START, goal, elbow='up')
+    assert plan.profile == 'set_point' and plan.times.tolist() == [0.0]
+    assert plan.duration == 0.0 and plan.q[0, 1] < 0
+    assert np.abs(ARM.forward_kinematics(plan.q[0]) - goal).max() < 1e-12
+    assert plan.peak_torque == pytest.approx(np.abs(ARM.gravity_vector(plan.q[0])))
+    assert plan.display_path.shape == (2, 2)
+
+
+@pytest.mark.parametrize('time_scaling', ['quintic', 'trapezoidal'])
+def test_synchronized_regulation_moves_both_joints_together(time_scaling):
+    goal = (-0.6, 1.2)
+    q0 = np.array([-0.4 + 2 * math.pi, 1.2])  # a whole turn on: the shortest motion is kept
+    plan = plan_regulation(ARM, LIMITS, q0, goal, profile='synchronized',
+                           time_scaling=time_scaling, joint_max_velocity=1.0,
+                           joint_max_acceleration=2.0)
+    assert plan.profile == 'synchronized'
+    assert np.abs(ARM.forward_kinematics(plan.q[-1]) - goal).max() < 1e-12
+    delta = plan.q[-1] - plan.q[0]
+    assert np.abs(delta).max() <= math.pi and np.abs(plan.q[0] - q0).max() == 0
+    progress = (plan.q - plan.q[0]) / delta
+    assert np.abs(progress[:, 0] - progress[:, 1]).max() < 1e-12, 'joints move together'
+    assert not plan.qd[0].any() and not plan.qd[-1].any()
+    t, (_q, qd, qdd) = controller_samples(plan)
+    assert np.abs(qd).max() <= 1.0 + 1e-6 and np.abs(qdd).max() <= 2.0 + 1e-6
+    assert max(np.abs(qd).max(), np.abs(qdd).max() / 2.0) > 0.999, 'a limit is reached'
+
+
+# ---------------------------------------------------------------------- torque
+def predicted_torque(plan) -> np.ndarray:
+    return np.abs(ARM.inverse_dynamics(plan.q, plan.qd, plan.qdd)).max(axis=0)
+
+
+STRETCH_CASES = [
+    ('straight_line', 'quintic', LIMITS),
+    ('straight_line', 'trapezoidal', LIMITS),
+    ('synchronized', 'quintic', LIMITS),
+    ('synchronized', 'trapezoidal', LIMITS),
+    # Gravity alone needs about 29 N m at the shoulder here: the fitting duration is long
+    # and the torque far from proportional to 1/T^2.
+    ('straight_line', 'quintic', np.array([30.5, 20.0])),
+]
+
+
+def make(kind: str, time_scaling: str, limits, duration: float, feasibility: str):
+    if kind == 'straight_line':
+        return plan_straight_line(ARM, limits, Q_START, (1.5, 0.3), duration=duration,
+                                  time_scaling=time_scaling, feasibility=feasibility)
+    return plan_regulation(ARM, limits, Q_START, (1.5, 0.3), profile='synchronized',
+                           duration=duration, time_scaling=time_scaling,
+                           feasibility=feasibility)
+
+
+@pytest.mark.parametrize('kind, time_scaling, limits', STRETCH_CASES)
+def test_too_short_a_duration_is_stretched_minimally_to_fit_the_limits(kind, time_scaling,
+                                                                        limits):
+    plan = make(kind, time_scaling, limits, 0.1, 'stretch')
+    assert plan.stretched_from == 0.1 and plan.duration > 0.1
+    assert any('stretched from 0.100 s' in m for m in plan.messages)
+    assert (plan.peak_torque <= limits).all() and (plan.margin >= 0).all()
+    assert (predicted_torque(plan) <= limits).all()
+    t, (q, qd, qdd) = controller_samples(plan)
+    assert (np.abs(ARM.inverse_dynamics(q, qd, qdd)).max(axis=0) <= limits * 1.001).all()
+    # The found duration fits as requested; 1% faster does not.
+    again = make(kind, time_scaling, limits, plan.duration, 'refuse')
+    assert again.stretched_from is None
+    with pytest.raises(PlanningError, match='exceeds the limits'):
+        make(kind, time_scaling, limits, 0.99 * plan.duration, 'refuse')
+
+
+def test_refuse_policy_refuses_and_names_the_duration_that_would_fit():
+    with pytest.raises(PlanningError) as info:
+        make('straight_line', 'quintic', LIMITS, 0.1, 'refuse')
+    msg = str(info.value)
+    assert 'at duration 0.100 s' in msg and 'fastest duration that fits is' in msg
+    assert '[60.0, 20.0]' in msg
+
+
+def test_gravity_alone_beyond_the_limits_is_refused_whatever_the_duration():
+    weak = np.array([20.0, 20.0])
+    with pytest.raises(PlanningError, match=r'gravity alone .* > limit 20 N m'):
+        plan_straight_line(ARM, weak, Q_START, (1.5, 0.3), duration=100.0)
+    with pytest.raises(PlanningError, match=r'holding the goal .* > limit 20 N m'):
+        plan_regulation(ARM, weak, Q_START, (1.7, 0.0))
+
+
+# ---------------------------------------------------------------------- refusals
+@pytest.mark.parametrize('goal, pattern', [
+    ((3.0, 0.0), r'\(3\.0000, 0\.0000\) m is out of reach: r = 3\.0000 m > .* = 1\.7900 m'),
+    ((0.1, 0.05), r'too close to the base: r = 0\.1118 m < .* = 0\.2100 m'),
+    ((1.785, 0.0), r'too near a singularity: \|sin q2\| = 0\.\d+ < singularity_margin 0\.3'),
+    ((math.nan, 1.0), r'goal must be two finite numbers .*nan'),
+    ((1.0, math.inf), r'goal must be two finite numbers .*inf'),
+])
+@pytest.mark.parametrize('mode', ['regulation', 'straight_line'])
+def test_unreachable_singular_and_nan_goals_are_refused_naming_the_numbers(goal, pattern,
+                                                                           mode):
+    settings = PlannerSettings(mode=mode, singularity_margin=0.3 if goal[0] == 1.785 else 0.1,
+                               reach_margin=0.0 if goal[0] == 1.785 else 0.01)
+    with pytest.raises(PlanningError, match=pattern):
+        plan_goal(ARM, LIMITS, Q_START, goal, settings)
+
+
+def test_a_line_near_a_singularity_or_needing_an_elbow_flip_is_refused():
+    # From (1.2, 0.4) to (-0.3, -0.1): the line passes 0.0 m from the base.
+    q0 = inverse_kinematics(ARM.link_lengths, (1.2, 0.4), 'down')
+    with pytest.raises(PlanningError, match=r'passes r = 0\.0\d+ m from the base'):
+        plan_straight_line(ARM, LIMITS, q0, (-0.3, -0.1))
+    # Both ends fine, but the line runs 0.215 m from the base (inside the annulus with its
+    # margin, 0.21 m): |sin q2| = 0.088 there, below the margin 0.1.
+    q0 = inverse_kinematics(ARM.link_lengths, (1.2, 0.215), 'down')
+    with pytest.raises(PlanningError, match=r'too near a singularity: \|sin q2\| = 0\.0881 '
+                                            r'< singularity_margin 0\.1 .*r = 0\.2150 m'):
+        plan_straight_line(ARM, LIMITS, q0, (-0.5, 0.215))
+    with pytest.raises(PlanningError, match=r'cannot flip the elbow: .*elbow-down now '
+                                            r'\(q2 = 1\.2000 rad\)'):
+        plan_straight_line(ARM, LIMITS, Q_START, (0.5, 1.0), elbow='up')
+    # Regulation may flip it.
+    assert plan_regulation(ARM, LIMITS, Q_START, (0.5, 1.0), elbow='up').elbow == 'up'
+
+
+def test_plan_goal_follows_the_settings():
+    line = plan_goal(ARM, LIMITS, Q_START, (0.5, 1.0), PlannerSettings(mode='straight_line'))
+    assert line.mode == 'straight_line' and len(line.times) > 2
+    hold = plan_goal(ARM, LIMITS, Q_START, (0.5, 1.0), PlannerSettings())
+    assert hold.profile == 'set_point'
+    with pytest.raises(ValueError, match='mode must be one of'):
+        plan_goal(ARM, LIMITS, Q_START, (0.5, 1.0), PlannerSettings(mode='circle'))

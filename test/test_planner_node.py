@@ -1,0 +1,196 @@
+"""Topic-level tests of the ``planner`` node (a real process on a private domain).
+
+The test's own node plays the robot: it publishes ``joint_states`` (50 Hz) and
+``goal_pose``, and listens to the planner's trajectory, path and /diagnostics.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+
+from arm_dynamics import TwoLinkArm
+
+ARM = TwoLinkArm()  # the node's defaults are the contract's arm
+Q0 = [-0.4, 1.2]
+TRAJECTORY = 'arm_controller/joint_trajectory'
+
+
+@pytest.fixture
+def joint_feed(ros):
+    """Publishes ``joint_states`` at 50 Hz once ``feed['q']`` is set."""
+    pub = ros.publisher(JointState, 'joint_states')
+    feed: dict = {'q': None}
+
+    def tick() -> None:
+        if feed['q'] is not None:
+            pub.publish(JointState(name=['joint1', 'joint2'], position=list(feed['q']),
+                                   velocity=[0.0, 0.0], effort=[0.0, 0.0]))
+
+    timer = ros.node.create_timer(0.02, tick)
+    yield feed
+    ros.node.destroy_timer(timer)
+
+
+def goal_msg(x: float, y: float, frame: str = 'base_link') -> PoseStamped:
+    msg = PoseStamped()
+    msg.header.frame_id = frame
+    msg.pose.position.x, msg.pose.position.y = x, y
+    msg.pose.orientation.w = 1.0
+    return msg
+
+
+def diag_texts(diags: list) -> list[str]:
+    return [f'{s.message} {[(kv.key, kv.value) for kv in s.values]}'
+            for d in diags for s in d.status if s.name == '/planner']
+
+
+def set_param(ros, name: str, value):
+    if isinstance(value, str):
+        pv = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
+    else:
+        pv = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=float(value))
+    request = SetParameters.Request(parameters=[Parameter(name=name, value=pv)])
+    return ros.call(SetParameters, '/planner/set_parameters', request).results[0]
+
+
+def seconds(duration) -> float:
+    return duration.sec + duration.nanosec * 1e-9
+
+
+def spin_for(ros, seconds_: float) -> None:
+    end = time.monotonic() + seconds_
+    while time.monotonic() < end:
+        ros.executor.spin_once(timeout_sec=0.02)
+
+
+def connect(ros, diags: list):
+    """Goal publisher matched to the planner, planner outputs discovered, and the planner
+    holding a joint state (its periodic /diagnostics summary says 'ready')."""
+    goals = ros.publisher(PoseStamped, 'goal_pose')
+    ros.wait_for(lambda: goals.get_subscription_count() >= 1, 20, 'planner subscribing')
+    ros.wait_for(lambda: ros.node.count_publishers('/' + TRAJECTORY) >= 1
+                 and ros.node.count_publishers('/planner/path') >= 1, 10, 'planner outputs')
+    return goals
+
+
+def wait_ready(ros, diags: list) -> None:
+    ros.wait_for(lambda: any('ready' in t or 'last plan' in t for t in diag_texts(diags)),
+                 10, 'the planner to hold a joint state')
+
+
+def last_point_fk(traj: JointTrajectory) -> np.ndarray:
+    return ARM.forward_kinematics(np.array(traj.points[-1].positions))
+
+
+def test_goal_gives_one_trajectory_and_path_and_mode_changes_at_run_time(ros, launch,
+                                                                         joint_feed):
+    node = launch('planner', params={'regulation_profile': 'synchronized'})
+    trajs = ros.collect(JointTrajectory, TRAJECTORY)
+    paths = ros.collect(Path, 'planner/path')
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    goals = connect(ros, diags)
+    joint_feed['q'] = Q0
+    wait_ready(ros, diags)
+
+    # Regulation (synchronized joint-space profile).
+    target = np.array([0.5, 1.0])
+    goals.publish(goal_msg(*target))
+    ros.wait_for(lambda: trajs and paths, 10, 'trajectory and path')
+    spin_for(ros, 0.3)
+    assert len(trajs) == 1 and len(paths) == 1, 'exactly one of each per goal'
+    traj, path = trajs[0], paths[0]
+    assert list(traj.joint_names) == ['joint1', 'joint2']
+    assert traj.header.stamp.sec == 0 and traj.header.stamp.nanosec == 0
+    times = [seconds(p.time_from_start) for p in traj.points]
+    assert times[0] == 0.0 and (np.diff(times) > 0).all() and len(times) > 2
+    assert all(len(p.velocities) == 2 and len(p.accelerations) == 2 for p in traj.points)
+    assert traj.points[0].positions == pytest.approx(Q0, abs=1e-12)
+    assert np.abs(last_point_fk(traj) - target).max() < 1e-9
+    assert path.header.frame_id == 'base_link'
+    end = path.poses[-1].pose.position
+    assert [end.x, end.y] == pytest.approx(target.tolist(), abs=1e-9)
+
+    # Switch to straight lines through the parameter service: the next goal follows it.
+    result = set_param(ros, 'mode', 'straight_line')
+    assert result.successful, result.reason
+    target = np.array([1.2, -0.3])
+    goals.publish(goal_msg(*target, frame=''))  # empty frame = base frame
+    ros.wait_for(lambda: len(trajs) == 2 and len(paths) == 2, 10, 'second plan')
+    q = np.array([p.positions for p in trajs[1].points])
+    fk = ARM.forward_kinematics(q)
+    start = ARM.forward_kinematics(np.array(Q0))
+    d = (target - start) / np.linalg.norm(target - start)
+    off_line = np.abs((fk - start) @ np.array([-d[1], d[0]]))
+    assert off_line.max() < 1e-9, 'every point on the straight line'
+    assert np.abs(fk[-1] - target).max() < 1e-9
+    xy = np.array([[p.pose.position.x, p.pose.position.y] for p in paths[1].poses])
+    assert np.abs((xy - start) @ np.array([-d[1], d[0]])).max() < 1e-9
+    ros.wait_for(lambda: any('last plan: straight_line' in t for t in diag_texts(diags)),
+                 5, 'plan summary on /diagnostics')
+    log = node.output()
+    assert 'regulation (synchronized quintic, elbow down) to (0.5000, 1.0000) m' in log
+    assert 'peak torque' in log and 'limits [60.0, 20.0] N m' in log
+
+    # Bad values are refused with the reason and change nothing.
+    for name, value, reason in (('mode', 'circle', 'mode must be one of'),
+                                ('duration', -1.0, 'duration must be >= 0 s'),
+                                ('reach_margin', 0.9, 'leaves no reachable goal')):
+        result = set_param(ros, name, value)
+        assert not result.successful and reason in result.reason, (name, result.reason)
+    goals.publish(goal_msg(0.5, 1.0))
+    ros.wait_for(lambda: len(trajs) == 3, 10, 'third plan, still a straight line')
+    assert len(trajs[2].points) > 2
+
+
+def test_refused_goals_publish_nothing_and_are_reported(ros, launch, joint_feed):
+    launch('planner')
+    trajs = ros.collect(JointTrajectory, TRAJECTORY)
+    paths = ros.collect(Path, 'planner/path')
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    goals = connect(ros, diags)
+    ros.wait_for(lambda: diag_texts(diags), 10, 'first /diagnostics report')
+
+    def refused(msg: PoseStamped, kind: str, words: str) -> None:
+        diags.clear()
+        goals.publish(msg)
+        ros.wait_for(lambda: any(t.startswith(f'{kind}: ') and words in t
+                                 for t in diag_texts(diags)), 10, f'{kind} report')
+        spin_for(ros, 0.2)
+        assert not trajs and not paths, f'nothing published for a {kind} goal'
+
+    refused(goal_msg(0.5, 1.0), 'goal_before_state', 'no joint_states received yet')
+    joint_feed['q'] = Q0
+    wait_ready(ros, diags)
+    refused(goal_msg(math.nan, 1.0), 'goal_not_finite', '[nan, 1.0]')
+    refused(goal_msg(0.5, 1.0, frame='world'), 'goal_wrong_frame', "frame_id 'world'")
+    refused(goal_msg(3.0, 0.0), 'goal_refused', 'r = 3.0000 m > l1 + l2 - reach_margin')
+    # Still alive and planning.
+    goals.publish(goal_msg(0.5, 1.0))
+    ros.wait_for(lambda: trajs, 10, 'a plan for a good goal')
+    assert len(trajs[0].points) == 1, 'default regulation profile: a set point'
+    assert np.abs(last_point_fk(trajs[0]) - [0.5, 1.0]).max() < 1e-9
+
+
+def test_help_and_refused_start_parameters(tmp_path):
+    from arm_sim.launcher import NodeProcess
+    proc = NodeProcess('planner', extra_args=['--help'], log_path=tmp_path / 'help.log',
+                       domain_id=0)
+    assert proc.proc.wait(30) == 0
+    assert 'singularity_margin' in proc.output() and '[m/s]' in proc.output()
+    proc = NodeProcess('planner', params={'mode': 'circle', 'max_speed': 0.0},
+                       log_path=tmp_path / 'bad.log', domain_id=0)
+    assert proc.proc.wait(30) == 2
+    out = proc.output()
+    assert 'mode must be one of' in out and 'max_speed must be > 0 m/s' in out
+    assert 'Traceback' not in out
