@@ -175,8 +175,9 @@ class ControllerNode(Node):
             self.diag.problem('rejected_trajectory', f'trajectory refused: {exc}; keeping '
                               'the current reference')
             return
-        self.get_logger().info(f'new trajectory: {len(msg.points)} point(s) over '
-                               f'{traj.duration:.3f} s from t={start:.3f} s')
+        text = (f'{len(msg.points)} point(s) over {traj.duration:.3f} s from t={start:.3f} s')
+        self.get_logger().info(f'new trajectory: {text}')
+        self.diag.event('trajectory_accepted', text)
 
     # ------------------------------------------------------------------ output
     def _on_timer(self) -> None:

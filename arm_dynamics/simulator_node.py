@@ -298,7 +298,9 @@ class SimulatorNode(Node):
     def _housekeeping(self) -> None:
         now = time.monotonic()
         timeout = self.params['command_timeout']
-        if (timeout > 0 and self.ever_commanded and not self.timed_out
+        if self.paused:  # no commands are due while paused
+            self.last_command_wall = now
+        elif (timeout > 0 and self.ever_commanded and not self.timed_out
                 and now - self.last_command_wall > timeout):
             self.timed_out = True
             self.anchor = None
@@ -318,10 +320,10 @@ class SimulatorNode(Node):
         core = self.core
         if core.diverged:
             level, message = 'ERROR', core.diverged
-        elif self.timed_out:
-            level, message = 'WARN', 'command timeout: applying zero torque'
         elif self.paused:
             level, message = 'OK', f'paused at t={core.time:.3f} s (pause_at)'
+        elif self.timed_out:
+            level, message = 'WARN', 'command timeout: applying zero torque'
         else:
             level, message = 'OK', f'running ({self.mode})'
         self.diag.set(level, message, sim_time=f'{core.time:.3f}', timing_mode=self.mode,

@@ -11,7 +11,14 @@ from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import (
+    ParameterDescriptor,
+    ParameterType,
+    ParameterValue,
+    SetParametersResult,
+)
+from rcl_interfaces.srv import SetParameters
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -79,6 +86,30 @@ def on_parameter_changes(node: Node, specs: Iterable[ParamSpec],
     node.add_post_set_parameters_callback(after)
 
 
+def parameter_value(value: Any) -> ParameterValue:
+    """A Python value as an rcl_interfaces ParameterValue (bool, int, float, str, lists)."""
+    T = ParameterType
+    if isinstance(value, bool):
+        return ParameterValue(type=T.PARAMETER_BOOL, bool_value=value)
+    if isinstance(value, int):
+        return ParameterValue(type=T.PARAMETER_INTEGER, integer_value=value)
+    if isinstance(value, float):
+        return ParameterValue(type=T.PARAMETER_DOUBLE, double_value=value)
+    if isinstance(value, str):
+        return ParameterValue(type=T.PARAMETER_STRING, string_value=value)
+    items = list(value)
+    if all(isinstance(v, str) for v in items) and items:
+        return ParameterValue(type=T.PARAMETER_STRING_ARRAY, string_array_value=items)
+    return ParameterValue(type=T.PARAMETER_DOUBLE_ARRAY,
+                          double_array_value=[float(v) for v in items])
+
+
+def set_parameters_request(values: dict[str, Any]) -> SetParameters.Request:
+    """A request for a node's ``set_parameters`` service."""
+    return SetParameters.Request(parameters=[
+        ParameterMsg(name=k, value=parameter_value(v)) for k, v in values.items()])
+
+
 class Diagnostics:
     """One DiagnosticStatus for a node on ``/diagnostics``: a summary published every
     second, and rejected input reported at once (throttled per kind, with counts)."""
@@ -111,6 +142,11 @@ class Diagnostics:
             log = self.node.get_logger()
             (log.error if level == 'ERROR' else log.warning)(f'{reason}{more}')
             self.publish(extra=(level, f'{kind}: {reason}'))
+
+    def event(self, kind: str, message: str) -> None:
+        """Publish a notable event now (level OK, counted), e.g. an accepted trajectory."""
+        self.counts[kind] = self.counts.get(kind, 0) + 1
+        self.publish(extra=('OK', f'{kind}: {message}'))
 
     def publish(self, extra: tuple[str, str] | None = None) -> None:
         level, message = extra or (self.level, self.message)

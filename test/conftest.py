@@ -70,6 +70,16 @@ class Ros:
         finally:
             self.node.destroy_client(client)
 
+    def set_params(self, node: str, **values) -> list:
+        """Set parameters of ``node`` (e.g. '/planner') through its parameter service;
+        returns the SetParametersResult list."""
+        from rcl_interfaces.srv import SetParameters
+
+        from arm_sim.ros_common import set_parameters_request
+
+        return self.call(SetParameters, f'{node}/set_parameters',
+                         set_parameters_request(values)).results
+
     def reset(self) -> None:
         for entity in self._entities:
             if hasattr(entity, 'topic_name') and hasattr(entity, 'handle'):

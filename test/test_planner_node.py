@@ -14,8 +14,6 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
-from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-from rcl_interfaces.srv import SetParameters
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
@@ -56,12 +54,7 @@ def diag_texts(diags: list) -> list[str]:
 
 
 def set_param(ros, name: str, value):
-    if isinstance(value, str):
-        pv = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
-    else:
-        pv = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=float(value))
-    request = SetParameters.Request(parameters=[Parameter(name=name, value=pv)])
-    return ros.call(SetParameters, '/planner/set_parameters', request).results[0]
+    return ros.set_params('/planner', **{name: value})[0]
 
 
 def seconds(duration) -> float:

@@ -162,14 +162,6 @@ def test_divergence_stops_integration_and_holds_last_good_state(ros, launch):
                  what='reset state published')
 
 
-def set_param(ros, node: str, name: str, value: float):
-    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-    from rcl_interfaces.srv import SetParameters
-    req = SetParameters.Request(parameters=[Parameter(name=name, value=ParameterValue(
-        type=ParameterType.PARAMETER_DOUBLE, double_value=value))])
-    return ros.call(SetParameters, f'{node}/set_parameters', req).results[0]
-
-
 def test_lockstep_pauses_at_pause_at_and_resumes_when_it_moves(ros, launch):
     launch('simulator', params={'timing_mode': 'lockstep', 'pause_at': 0.05})
     states = ros.collect(JointState, 'joint_states')
@@ -191,10 +183,10 @@ def test_lockstep_pauses_at_pause_at_and_resumes_when_it_moves(ros, launch):
     ros.wait_for(lambda: any('paused at t=0.050' in m for m in diag_messages(diags)),
                  what='the simulator to report the pause')
     assert max(stamp(m) for m in states) == pytest.approx(0.05), 'time stood at pause_at'
-    assert set_param(ros, '/simulator', 'pause_at', -1.0).successful
+    assert ros.set_params('/simulator', pause_at=-1.0)[0].successful
     # Negative resumes; the command held for the paused state advances the loop again.
     ros.wait_for(answer(0.1), what='time to run on after resuming')
-    refused = set_param(ros, '/simulator', 'real_time_factor', -1.0)
+    refused = ros.set_params('/simulator', real_time_factor=-1.0)[0]
     assert not refused.successful and 'real_time_factor must be > 0' in refused.reason
 
 
