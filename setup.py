@@ -28,7 +28,7 @@ setup(
         # Versions live in constraints.txt; these are the names only.
         'ros': ['ros-jazzy-rclpy', 'ros-jazzy-common-interfaces',
                 'ros-jazzy-rmw-fastrtps-cpp', 'ros-jazzy-std-srvs'],
-        'core': ['numpy', 'scipy', 'mcap', 'pyyaml', 'matplotlib'],
+        'core': ['numpy', 'scipy', 'mcap', 'pyyaml', 'matplotlib', 'zstandard', 'lz4'],
         'test': ['pytest', 'pytest-timeout', 'ruff', 'colcon-common-extensions', 'rosbags'],
         'bench': ['pin', 'mujoco'],
     },
@@ -43,6 +43,7 @@ setup(
             'simulator = arm_dynamics.simulator_node:main',
             'controller = arm_control.controller_node:main',
             'planner = arm_planner.planner_node:main',
+            'recorder = arm_bag.recorder_node:main',
             'arm-sim = arm_sim.cli:main',
         ],
     },

@@ -140,7 +140,11 @@ class Diagnostics:
             held = self.throttle.take_suppressed(kind)
             more = f' ({held} more since last report)' if held else ''
             log = self.node.get_logger()
-            (log.error if level == 'ERROR' else log.warning)(f'{reason}{more}')
+            # Two call sites: rclpy refuses a severity change at one call site.
+            if level == 'ERROR':
+                log.error(f'{reason}{more}')
+            else:
+                log.warning(f'{reason}{more}')
             self.publish(extra=(level, f'{kind}: {reason}'))
 
     def event(self, kind: str, message: str) -> None:

@@ -1,0 +1,322 @@
+"""Analyse a recorded run: split it into segments and compute their metrics (pure).
+
+A new segment starts at every message on ``arm_controller/joint_trajectory`` (receive
+time); joint states received before the first trajectory are not analysed. Per segment:
+
+* ``mode``: ``straight_line`` if the segment's ``planner/path`` poses (the path received
+  closest to the trajectory, within 1 s before it or any time before the next one) -- or,
+  with no path, the forward kinematics of the trajectory points -- are >= 3 points lying
+  within 1e-6 m of the segment from the first to the last; else ``regulation``.
+* tracking error = joint position minus reference: the ``arm_controller/reference``
+  position with the same header stamp, or, with no reference topic, the trajectory's last
+  point (the set point).
+* regulation: settling time (2% band of the step from the first position of the segment
+  to the set point, per joint and overall = the largest) and overshoot (% of the step).
+* straight_line: perpendicular deviation of the end effector (forward kinematics of the
+  recorded positions, link lengths from the ``arm_sim_robot`` record) from the line
+  through the path's first and last pose.
+* torque: peak and RMS applied torque (JointState effort), saturated fraction
+  (|effort| >= effort_limit - 1e-9), energy delivered (trapezoid integral of tau . qd).
+
+Times are header stamps (simulated time) relative to the segment's first joint state.
+
+JSON (``Report.to_dict()``, ``arm-sim analyze --json``): NaN/undefined values are null;
+per-joint values are lists in ``joint_names`` order.
+
+* ``bag`` (str), ``joint_names`` [str], ``robot_source`` ("bag" | "defaults"),
+  ``link_lengths`` [m], ``effort_limits`` [N m], ``message_counts`` {topic: count},
+  ``truncated`` (bool), ``warnings`` [str]
+* ``run``: ``duration`` s, ``samples``, ``torque_peak`` / ``torque_rms`` [N m per joint],
+  ``saturated_fraction`` [per joint], ``energy`` J
+* ``segments``: list of
+
+  - ``index``, ``mode`` ("regulation" | "straight_line" | null when there is no
+    trajectory), ``start`` s (since the first joint state of the run), ``duration`` s,
+    ``samples``, ``reference`` ("reference_topic" | "set_point" | null), ``set_point`` [rad]
+  - ``tracking_rms``, ``tracking_max``, ``final_error`` [rad per joint]
+  - ``settling_time`` [s per joint], ``settling_time_overall`` s, ``overshoot`` [% per
+    joint] (regulation only, else null)
+  - ``line_start``, ``line_end`` [x, y m], ``deviation_max``, ``deviation_rms`` m
+    (straight_line only, else null)
+  - ``torque_peak``, ``torque_rms`` [N m per joint], ``saturated_fraction`` [per joint],
+    ``energy`` J
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from arm_bag import metrics
+from arm_bag.reader import BagData, JointStates, read_bag
+from arm_dynamics import TwoLinkArm
+
+PATH_LEAD = 1_000_000_000  # ns: a path may arrive up to 1 s before its trajectory
+
+
+class NothingToAnalyse(Exception):
+    """The bag holds no joint states: no metric can be computed."""
+
+
+@dataclass
+class Segment:
+    """Metrics of one segment (see the module docstring for the meaning of each)."""
+
+    index: int
+    mode: str | None
+    start: float
+    duration: float
+    samples: int
+    reference: str | None = None
+    set_point: list | None = None
+    tracking_rms: list | None = None
+    tracking_max: list | None = None
+    final_error: list | None = None
+    settling_time: list | None = None
+    settling_time_overall: float | None = None
+    overshoot: list | None = None
+    line_start: list | None = None
+    line_end: list | None = None
+    deviation_max: float | None = None
+    deviation_rms: float | None = None
+    torque_peak: list | None = None
+    torque_rms: list | None = None
+    saturated_fraction: list | None = None
+    energy: float | None = None
+    # arrays for plotting (not in to_dict)
+    series: dict = field(default_factory=dict, repr=False)
+
+
+@dataclass
+class Report:
+    """Analysis of one bag."""
+
+    bag: str
+    joint_names: list[str]
+    robot_source: str
+    link_lengths: list[float]
+    effort_limits: list[float]
+    message_counts: dict[str, int]
+    truncated: bool
+    warnings: list[str]
+    run: dict
+    segments: list[Segment]
+
+    def to_dict(self) -> dict:
+        """JSON-ready dictionary (keys documented in the module docstring)."""
+        out = asdict(self)
+        for seg in out['segments']:
+            seg.pop('series', None)
+        return _clean(out)
+
+
+def _clean(x):
+    if isinstance(x, dict):
+        return {k: _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _clean(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        return None if not math.isfinite(float(x)) else float(x)
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
+
+
+def _list(a) -> list | None:
+    return None if a is None else [None if not np.isfinite(v) else float(v)
+                                   for v in np.asarray(a, np.float64).ravel()]
+
+
+def analyze(path: str | Path) -> Report:
+    """Read the bag at ``path`` and analyse it (raises reader.BagError, NothingToAnalyse)."""
+    return analyze_data(read_bag(path))
+
+
+def _robot(bag: BagData, warnings: list[str], joints: int) -> tuple[str, list, list]:
+    from arm_sim.params import ROBOT_PARAMS, by_name
+
+    defaults = by_name(ROBOT_PARAMS)
+    robot = bag.robot or {}
+    source = 'bag' if bag.robot else 'defaults'
+    if not bag.robot:
+        warnings.append('no arm_sim_robot record in the bag: using the TwoLinkArm() '
+                        'defaults (link lengths 1.0, 0.8 m; effort limits 60, 20 N m)')
+
+    def get(name: str, fallback: list) -> list:
+        value = robot.get(name)
+        ok = (isinstance(value, list) and len(value) == joints
+              and all(isinstance(v, (int, float)) and v > 0 for v in value))
+        if value is not None and not ok:
+            warnings.append(f'arm_sim_robot {name}={value!r} unusable; using {fallback}')
+        return [float(v) for v in value] if ok else list(fallback)
+
+    lengths = get('link_lengths', list(TwoLinkArm().link_lengths))
+    limits = get('effort_limits', list(defaults['effort_limits'].default)[:joints]
+                 + [math.inf] * max(0, joints - 2))
+    return source, lengths, limits
+
+
+def _times(js: JointStates, warnings: list[str]) -> np.ndarray:
+    """Sample times [ns]: header stamps if they increase, else receive times."""
+    st = js.stamp
+    if len(st) > 1 and (np.diff(st) < 0).any() or (len(st) > 1 and st[-1] == st[0]):
+        warnings.append(f'{js.topic}: header stamps do not increase; using receive times')
+        return js.log_time
+    return st
+
+
+def analyze_data(bag: BagData) -> Report:
+    """Analyse what :func:`arm_bag.reader.read_bag` returned."""
+    warnings = list(bag.warnings)
+    js = bag.joint_states
+    if js is None or len(js) == 0:
+        raise NothingToAnalyse(f'{bag.path}: no joint_states messages (topics: '
+                               + (', '.join(sorted(bag.topics)) or 'none') + ')')
+    joints = len(js.names)
+    source, lengths, limits = _robot(bag, warnings, joints)
+    arm = TwoLinkArm(link_lengths=tuple(lengths)) if joints == 2 else None
+    if arm is None:
+        warnings.append(f'{joints} joints: no end-effector metrics (the 2-R model needs 2)')
+    t_ns = _times(js, warnings)
+    t = (t_ns - t_ns[0]) * 1e-9
+    ref = _reference(bag, js, warnings)
+    trajs = [tr for tr in bag.trajectories if tr.trajectory.joint_names == js.names
+             and len(tr.trajectory.positions)]
+    if len(trajs) < len(bag.trajectories):
+        warnings.append(f'{len(bag.trajectories) - len(trajs)} trajectories with other '
+                        f'joint names or no points ignored')
+    run = {'duration': float(t[-1]), 'samples': len(js)}
+    run.update(_torque(t, js.effort, js.velocity, limits, slice(None)))
+    segments: list[Segment] = []
+    if not trajs:
+        warnings.append('no joint_trajectory messages: the whole run is one segment '
+                        'without a set point')
+        segments.append(_segment(0, None, None, slice(0, len(js)), t, js, ref, arm, limits,
+                                 bag, warnings))
+    else:
+        bounds = np.searchsorted(js.log_time, [tr.log_time for tr in trajs]).tolist()
+        bounds.append(len(js))
+        if bounds[0] > 0:
+            warnings.append(f'{bounds[0]} joint states before the first trajectory not '
+                            'analysed')
+        for k, tr in enumerate(trajs):
+            sl = slice(bounds[k], bounds[k + 1])
+            if sl.stop - sl.start < 1:
+                warnings.append(f'segment {k}: no joint states after its trajectory')
+                continue
+            nxt = trajs[k + 1].log_time if k + 1 < len(trajs) else None
+            segments.append(_segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag,
+                                     warnings))
+    return Report(bag=bag.path, joint_names=list(js.names), robot_source=source,
+                  link_lengths=lengths, effort_limits=limits,
+                  message_counts={k: v[1] for k, v in sorted(bag.topics.items())},
+                  truncated=bag.truncated, warnings=warnings, run=_clean(run),
+                  segments=segments)
+
+
+def _reference(bag: BagData, js: JointStates, warnings: list[str]) -> np.ndarray | None:
+    """Reference positions (N, J) matched to the joint states by stamp (NaN: none)."""
+    r = bag.reference
+    if r is None or len(r) == 0:
+        return None
+    if r.names != js.names:
+        warnings.append(f'reference joint names {list(r.names)} differ from '
+                        f'{list(js.names)}; reference ignored')
+        return None
+    order = np.argsort(r.stamp, kind='stable')
+    st = r.stamp[order]
+    # the last reference for a stamp wins
+    last = np.r_[st[1:] != st[:-1], True]
+    st, pos = st[last], r.position[order][last]
+    i = np.clip(np.searchsorted(st, js.stamp), 0, len(st) - 1)
+    hit = st[i] == js.stamp
+    out = np.full_like(js.position, np.nan)
+    out[hit] = pos[i[hit]]
+    if not hit.any():
+        warnings.append('no reference stamp matches a joint state stamp; reference ignored')
+        return None
+    return out
+
+
+def _torque(t, effort, velocity, limits, sl) -> dict:
+    stats = metrics.torque_stats(effort[sl], limits)
+    ok = np.isfinite(effort[sl]).all(axis=1) & np.isfinite(velocity[sl]).all(axis=1)
+    energy = metrics.energy_delivered(t[sl][ok], effort[sl][ok], velocity[sl][ok])
+    return {'torque_peak': _list(stats['peak']), 'torque_rms': _list(stats['rms']),
+            'saturated_fraction': _list(stats['saturated_fraction']), 'energy': energy}
+
+
+def _path_for(bag: BagData, log_time: int, nxt: int | None) -> np.ndarray | None:
+    best = None
+    for p in bag.paths:
+        if p.log_time < log_time - PATH_LEAD or (nxt is not None and p.log_time >= nxt):
+            continue
+        if best is None or abs(p.log_time - log_time) < abs(best.log_time - log_time):
+            best = p
+    return None if best is None else best.xy
+
+
+def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
+    q = js.position[sl]
+    ts = t[sl]
+    seg = Segment(index=k, mode=None, start=float(ts[0]), duration=float(ts[-1] - ts[0]),
+                  samples=len(ts))
+    seg.__dict__.update(_torque(t, js.effort, js.velocity, limits, sl))
+    seg.series = {'t': ts - ts[0], 'q': q, 'effort': js.effort[sl]}
+    set_point = None
+    points = None
+    if tr is not None:
+        traj = tr.trajectory
+        set_point = traj.positions[-1]
+        seg.set_point = _list(set_point)
+        path = _path_for(bag, tr.log_time, nxt)
+        if path is not None and len(path):
+            points = path
+        elif arm is not None:
+            points = arm.forward_kinematics(traj.positions)
+        straight = points is not None and metrics.is_straight_line(points)
+        seg.mode = 'straight_line' if straight else 'regulation'
+    # tracking
+    desired = None
+    if ref is not None:
+        desired = ref[sl]
+        seg.reference = 'reference_topic'
+    elif set_point is not None:
+        desired = np.broadcast_to(set_point, q.shape)
+        seg.reference = 'set_point'
+    if desired is not None:
+        ok = np.isfinite(desired).all(axis=1) & np.isfinite(q).all(axis=1)
+        if ok.any():
+            err = metrics.tracking_errors(q[ok] - desired[ok])
+            seg.tracking_rms, seg.tracking_max = _list(err['rms']), _list(err['max'])
+            seg.final_error = _list(err['final'])
+            seg.series['ref'] = desired
+        else:
+            warnings.append(f'segment {k}: no joint state has a matching reference')
+    if seg.mode == 'regulation':
+        q0 = q[0]
+        st = [metrics.settling_time(seg.series['t'], q[:, j], q0[j], set_point[j])
+              for j in range(q.shape[1])]
+        seg.settling_time = st
+        moving = [s for s, j in zip(st, range(q.shape[1])) if q0[j] != set_point[j]]
+        seg.settling_time_overall = (None if not moving or any(s is None for s in moving)
+                                     else max(moving))
+        seg.overshoot = [metrics.overshoot(q[:, j], q0[j], set_point[j])
+                         for j in range(q.shape[1])]
+    if seg.mode == 'straight_line' and arm is not None:
+        a, b = points[0], points[-1]
+        xy = arm.forward_kinematics(q[np.isfinite(q).all(axis=1)])
+        dev = metrics.line_deviation(xy, a, b)
+        seg.line_start, seg.line_end = _list(a), _list(b)
+        if len(dev):
+            seg.deviation_max = float(dev.max())
+            seg.deviation_rms = float(np.sqrt(np.mean(dev * dev)))
+        seg.series.update(xy=xy, deviation=dev, line=(a, b))
+    elif arm is not None:
+        seg.series['xy'] = arm.forward_kinematics(q[np.isfinite(q).all(axis=1)])
+    return seg

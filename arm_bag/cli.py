@@ -1,0 +1,86 @@
+"""``arm-sim analyze BAG...``: metrics of recorded runs (thin CLI over arm_bag.analysis).
+
+Exit codes: 0 every bag analysed; 2 usage error; 3 a bag holds nothing analysable (no
+joint states); 4 a path is not a bag or is unreadable. Errors are one line on stderr;
+warnings (truncated bag, no metadata, default robot parameters, ...) are printed as
+``warning: ...`` lines on stderr and never change the exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+EXIT_OK, EXIT_USAGE, EXIT_NOTHING, EXIT_UNREADABLE = 0, 2, 3, 4
+
+
+def add_analyze_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``analyze`` sub-command to an argparse ``subparsers`` object."""
+    p = subparsers.add_parser(
+        'analyze', help='metrics of recorded runs (bag directories or .mcap files)',
+        description='Read rosbag2/MCAP bags recorded from arm_sim and print per-segment '
+        'metrics (tracking error, settling time, overshoot, straight-line deviation, '
+        'torque, energy); several bags are compared side by side. Exit codes: 0 ok, '
+        '2 usage, 3 nothing analysable, 4 not a bag / unreadable.')
+    p.add_argument('bags', nargs='+', metavar='BAG', help='bag directory or .mcap file')
+    p.add_argument('--json', action='store_true',
+                   help='print JSON (keys documented in arm_bag.analysis) instead of a table')
+    p.add_argument('--plot', metavar='FILE.png', default=None,
+                   help='also write a PNG: joint angles vs reference, torques, end-effector '
+                   'path vs line, deviation over time')
+    p.set_defaults(func=run_analyze)
+    return p
+
+
+def run_analyze(args: argparse.Namespace) -> int:
+    """Run ``analyze``; returns the exit code (never raises for bad input)."""
+    from arm_bag.analysis import NothingToAnalyse, analyze
+    from arm_bag.reader import BagError
+
+    reports, code = [], EXIT_OK
+    for path in args.bags:
+        try:
+            reports.append(analyze(path))
+        except BagError as exc:
+            print(f'arm-sim analyze: {exc}', file=sys.stderr)
+            code = max(code, EXIT_UNREADABLE)
+        except NothingToAnalyse as exc:
+            print(f'arm-sim analyze: nothing to analyse: {exc}', file=sys.stderr)
+            code = max(code, EXIT_NOTHING) if code != EXIT_UNREADABLE else code
+        except (OSError, MemoryError) as exc:
+            print(f'arm-sim analyze: {path}: cannot read: {exc}', file=sys.stderr)
+            code = EXIT_UNREADABLE
+    for rep in reports:
+        for w in rep.warnings:
+            print(f'warning: {w}', file=sys.stderr)
+    if reports:
+        if args.json:
+            docs = [r.to_dict() for r in reports]
+            print(json.dumps(docs[0] if len(docs) == 1 else docs, indent=2))
+        else:
+            from arm_bag.report import format_table
+
+            print(format_table(reports))
+        if args.plot:
+            from arm_bag.plot import plot_report
+
+            try:
+                plot_report(reports, args.plot)
+            except (OSError, ValueError) as exc:
+                print(f'arm-sim analyze: cannot write plot {args.plot}: {exc}',
+                      file=sys.stderr)
+                return max(code, EXIT_UNREADABLE)
+    return code
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog='arm-sim')
+    sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
+    add_analyze_parser(sub)
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

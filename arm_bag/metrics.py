@@ -1,0 +1,150 @@
+"""Performance metrics of a recorded arm run: pure functions over numpy arrays.
+
+Shapes: ``N`` samples, ``J`` joints. Times in s, angles in rad, torques in N m,
+positions in m. Errors are actual minus desired.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _as2d(name: str, x, n: int | None = None) -> np.ndarray:
+    a = np.asarray(x, dtype=np.float64)
+    if a.ndim == 1:
+        a = a[:, None]
+    if a.ndim != 2 or (n is not None and a.shape[0] != n):
+        raise ValueError(f'{name} must have shape (N, J) with N = {n}, got {a.shape}')
+    return a
+
+
+def tracking_errors(error) -> dict[str, np.ndarray]:
+    """RMS, max and final tracking error per joint.
+
+    Parameters
+    ----------
+    error : (N, J) array, rad
+        Actual minus desired joint positions, N >= 1.
+
+    Returns
+    -------
+    dict with ``rms`` (J,), ``max`` (J,) (largest magnitude) and ``final`` (J,) (signed,
+    the last sample), rad.
+    """
+    e = _as2d('error', error)
+    if len(e) == 0:
+        raise ValueError('error must have at least one sample, got 0')
+    return {'rms': np.sqrt(np.mean(e * e, axis=0)), 'max': np.abs(e).max(axis=0),
+            'final': e[-1].copy()}
+
+
+def settling_time(t, q, q_start: float, q_final: float, band: float = 0.02) -> float | None:
+    """Time after ``t[0]`` from which ``q`` stays within ``band`` x step of ``q_final``.
+
+    Parameters
+    ----------
+    t : (N,) array, s
+    q : (N,) array, rad
+    q_start, q_final : float, rad
+        The step is ``|q_final - q_start|``; the band is ``band`` times it (2% default).
+
+    Returns
+    -------
+    float (s) or None if ``q`` is outside the band at the last sample or the step is zero.
+    """
+    t = np.asarray(t, np.float64)
+    q = np.asarray(q, np.float64)
+    if t.shape != q.shape or t.ndim != 1 or len(t) == 0:
+        raise ValueError(f't and q must be equal-length 1-D arrays, got {t.shape} and '
+                         f'{q.shape}')
+    step = abs(q_final - q_start)
+    if step == 0.0:
+        return None
+    outside = np.flatnonzero(np.abs(q - q_final) > band * step)
+    if len(outside) == 0:
+        return 0.0
+    last = outside[-1]
+    if last == len(q) - 1:
+        return None
+    return float(t[last + 1] - t[0])
+
+
+def overshoot(q, q_start: float, q_final: float) -> float | None:
+    """Overshoot in percent of the step: how far ``q`` (N,) [rad] goes past ``q_final`` in
+    the direction of motion (0 if never); None for a zero step."""
+    q = np.asarray(q, np.float64)
+    step = q_final - q_start
+    if step == 0.0 or len(q) == 0:
+        return None
+    past = (q - q_final) * np.sign(step)
+    return float(max(0.0, past.max()) / abs(step) * 100.0)
+
+
+def line_deviation(xy, a, b) -> np.ndarray:
+    """Perpendicular distance [m] of points ``xy`` (N, 2) from the line through ``a`` and
+    ``b`` (2,); if ``a == b``, the distance from ``a``."""
+    p = np.asarray(xy, np.float64).reshape(-1, 2)
+    a = np.asarray(a, np.float64)
+    d = np.asarray(b, np.float64) - a
+    length = float(np.hypot(*d))
+    r = p - a
+    if length == 0.0:
+        return np.hypot(r[:, 0], r[:, 1])
+    return np.abs(d[0] * r[:, 1] - d[1] * r[:, 0]) / length
+
+
+def is_straight_line(points, tol: float = 1e-6) -> bool:
+    """True if there are >= 3 ``points`` (P, 2) [m] and all lie within ``tol`` m of the
+    segment from the first to the last."""
+    p = np.asarray(points, np.float64).reshape(-1, 2)
+    if len(p) < 3 or not np.isfinite(p).all():
+        return False
+    a, b = p[0], p[-1]
+    d = b - a
+    length2 = float(d @ d)
+    if length2 == 0.0:
+        return False
+    s = np.clip((p - a) @ d / length2, 0.0, 1.0)
+    dist = np.hypot(*(p - (a + s[:, None] * d)).T)
+    return bool(dist.max() <= tol)
+
+
+def torque_stats(effort, effort_limits) -> dict[str, np.ndarray]:
+    """Peak |tau|, RMS tau and saturated fraction per joint.
+
+    Parameters
+    ----------
+    effort : (N, J) array, N m
+        Applied torque.
+    effort_limits : (J,) array, N m
+        A sample counts as saturated when ``|tau| >= limit - 1e-9``.
+
+    Returns
+    -------
+    dict with ``peak`` (J,) N m, ``rms`` (J,) N m, ``saturated_fraction`` (J,) in [0, 1]
+    (fraction of samples, i.e. of time at a uniform sampling rate).
+    """
+    tau = _as2d('effort', effort)
+    lim = np.asarray(effort_limits, np.float64).reshape(-1)
+    if lim.shape != (tau.shape[1],):
+        raise ValueError(f'effort_limits must have {tau.shape[1]} values, got {lim.shape}')
+    if len(tau) == 0:
+        nan = np.full(tau.shape[1], np.nan)
+        return {'peak': nan, 'rms': nan.copy(), 'saturated_fraction': nan.copy()}
+    mag = np.abs(tau)
+    return {'peak': mag.max(axis=0), 'rms': np.sqrt(np.mean(tau * tau, axis=0)),
+            'saturated_fraction': np.mean(mag >= lim - 1e-9, axis=0)}
+
+
+def energy_delivered(t, effort, velocity) -> float:
+    """Mechanical energy [J] delivered by the joint torques: the trapezoid integral of
+    ``sum_j tau_j qd_j`` over ``t`` (N,) s; ``effort``, ``velocity`` (N, J)."""
+    t = np.asarray(t, np.float64)
+    tau = _as2d('effort', effort, len(t))
+    qd = _as2d('velocity', velocity, len(t))
+    if tau.shape != qd.shape:
+        raise ValueError(f'effort {tau.shape} and velocity {qd.shape} must match')
+    if len(t) < 2:
+        return 0.0
+    power = np.sum(tau * qd, axis=1)
+    return float(np.sum(0.5 * (power[1:] + power[:-1]) * np.diff(t)))

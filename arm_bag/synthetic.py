@@ -1,0 +1,86 @@
+"""Synthetic arm_sim bags for tests and benchmarks, written without ROS (pure)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from arm_bag.cdr import (
+    decode_joint_state,
+    encode_joint_state,
+    encode_joint_trajectory,
+    encode_path,
+)
+from arm_bag.msgdefs import QosProfile, qos_yaml, schema_text, type_hash
+from arm_bag.writer import BagWriter
+
+NAMES = ('joint1', 'joint2')
+TOPICS = {'joint_states': 'sensor_msgs/msg/JointState',
+          'arm_controller/reference': 'sensor_msgs/msg/JointState',
+          'arm_controller/joint_trajectory': 'trajectory_msgs/msg/JointTrajectory',
+          'planner/path': 'nav_msgs/msg/Path'}
+ROBOT = {'joint_names': list(NAMES), 'link_lengths': [1.0, 0.8],
+         'effort_limits': [60.0, 20.0]}
+
+
+def open_bag(path: str | Path, robot: dict | None = ROBOT, compression: str = 'none',
+             chunk_size: int = 1 << 20) -> tuple[BagWriter, dict[str, int]]:
+    """A BagWriter with the arm_sim topics registered (and the robot record unless None)."""
+    w = BagWriter(path, compression=compression, chunk_size=chunk_size)
+    qos = qos_yaml([QosProfile()])
+    ch = {'/' + t: w.add_topic('/' + t, ty, schema_text(ty), qos, type_hash(ty))
+          for t, ty in TOPICS.items()}
+    if robot is not None:
+        w.add_metadata('arm_sim_robot', {k: json.dumps(v) for k, v in robot.items()})
+    return w, ch
+
+
+def joint_state_block(stamps_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray,
+                      effort: np.ndarray, names=NAMES) -> list[bytes]:
+    """CDR JointStates for N samples at once: stamps (N,) ns; arrays (N, J)."""
+    j = len(names)
+    template = encode_joint_state(0, names, [0.0] * j, [0.0] * j, [0.0] * j)
+    *_, layout = decode_joint_state(template)
+    n = len(stamps_ns)
+    rows = np.tile(np.frombuffer(template, np.uint8), (n, 1))
+    sec, nsec = np.divmod(np.asarray(stamps_ns, np.int64), 1_000_000_000)
+    rows[:, 4:8] = sec.astype('<i4')[:, None].view(np.uint8)
+    rows[:, 8:12] = nsec.astype('<u4')[:, None].view(np.uint8)
+    for (off, cnt), arr in zip((layout.position, layout.velocity, layout.effort),
+                               (position, velocity, effort)):
+        rows[:, off:off + 8 * cnt] = np.ascontiguousarray(arr, '<f8').view(np.uint8)
+    blob = rows.tobytes()
+    size = len(template)
+    return [blob[i * size:(i + 1) * size] for i in range(n)]
+
+
+def write_run(w: BagWriter, ch: dict[str, int], t0_log: int, t: np.ndarray,
+              q: np.ndarray, qd: np.ndarray, tau: np.ndarray, ref: np.ndarray | None,
+              trajectory: tuple[np.ndarray, np.ndarray] | None = None,
+              path_xy: np.ndarray | None = None, stamp0: int = 0) -> int:
+    """Write one segment: a trajectory (positions (P, 2), times (P,) s) and path at
+    ``t0_log`` [ns receive time], then a joint state (and reference) per sample of ``t``
+    [s, simulated time from ``stamp0`` ns], received 1 us apart. Returns the next free
+    receive time."""
+    log = t0_log
+    if trajectory is not None:
+        w.write(ch['/arm_controller/joint_trajectory'],
+                encode_joint_trajectory(0, NAMES, *trajectory), log)
+        log += 1000
+    if path_xy is not None:
+        w.write(ch['/planner/path'], encode_path(0, path_xy), log)
+        log += 1000
+    stamps = stamp0 + np.round(np.asarray(t) * 1e9).astype(np.int64)
+    states = joint_state_block(stamps, q, qd, tau)
+    refs = (joint_state_block(stamps, ref, np.zeros_like(ref), tau)
+            if ref is not None else None)
+    js, rc = ch['/joint_states'], ch['/arm_controller/reference']
+    for i, data in enumerate(states):
+        w.write(js, data, log)
+        log += 1000
+        if refs is not None:
+            w.write(rc, refs[i], log)
+            log += 1000
+    return log

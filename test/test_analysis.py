@@ -1,0 +1,228 @@
+"""Bag analysis without ROS: metrics against hand-computed values, reader robustness, CLI."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from arm_bag import metrics
+from arm_bag.analysis import analyze
+from arm_bag.cdr import decode_joint_states_bulk, encode_joint_state
+from arm_bag.reader import read_bag
+from arm_bag.synthetic import open_bag, write_run
+from arm_bag.writer import BagWriteError, BagWriter
+
+ROOT = Path(__file__).resolve().parents[1]
+L1, L2 = 1.0, 0.8
+
+
+def ik(xy: np.ndarray) -> np.ndarray:
+    """Elbow-up inverse kinematics of the default arm, (N, 2) m -> (N, 2) rad."""
+    x, y = xy[:, 0], xy[:, 1]
+    c2 = (x * x + y * y - L1 * L1 - L2 * L2) / (2 * L1 * L2)
+    q2 = np.arccos(np.clip(c2, -1, 1))
+    q1 = np.arctan2(y, x) - np.arctan2(L2 * np.sin(q2), L1 + L2 * np.cos(q2))
+    return np.stack([q1, q2], 1)
+
+
+# ---------------------------------------------------------------------- metrics
+def test_settling_time_and_overshoot_match_hand_values():
+    t = np.arange(7.0)
+    q = np.array([0.0, 0.5, 1.2, 1.1, 1.01, 1.0, 1.0])
+    assert metrics.overshoot(q, 0.0, 1.0) == pytest.approx(20.0)
+    # |q - 1| > 0.02 last at t = 3 (1.1), inside from t = 4 on
+    assert metrics.settling_time(t, q, 0.0, 1.0) == 4.0
+    assert metrics.settling_time(t, np.r_[q[:-1], 1.5], 0.0, 1.0) is None
+    assert metrics.overshoot(-q, 0.0, -1.0) == pytest.approx(20.0), 'negative step'
+    assert metrics.overshoot(q, 1.0, 1.0) is None, 'zero step'
+
+
+def test_line_deviation_energy_and_torque_stats_match_hand_values():
+    dev = metrics.line_deviation([[0.5, 0.003], [2.0, -0.001]], [0, 0], [1, 0])
+    assert dev == pytest.approx([0.003, 0.001])
+    t = np.linspace(0, 1, 11)
+    tau = np.tile([2.0, -1.0], (11, 1))
+    qd = np.tile([3.0, 4.0], (11, 1))
+    assert metrics.energy_delivered(t, tau, qd) == pytest.approx(6.0 - 4.0)
+    stats = metrics.torque_stats([[60.0, 1.0], [-59.0, -20.0], [0.0, 3.0], [60.0, 0.0]],
+                                 [60.0, 20.0])
+    assert stats['peak'] == pytest.approx([60.0, 20.0])
+    assert stats['saturated_fraction'] == pytest.approx([0.5, 0.25])
+    assert stats['rms'] == pytest.approx(np.sqrt([(3600 + 3481 + 3600) / 4,
+                                                  (1 + 400 + 9) / 4]))
+    assert metrics.is_straight_line([[0, 0], [0.5, 5e-7], [1, 0]])
+    assert not metrics.is_straight_line([[0, 0], [0.5, 2e-6], [1, 0]])
+    assert not metrics.is_straight_line([[0, 0], [1, 0]]), 'needs >= 3 points'
+    with pytest.raises(ValueError, match='effort_limits'):
+        metrics.torque_stats([[1.0, 2.0]], [1.0])
+
+
+# ---------------------------------------------------------------------- synthetic runs
+def synthetic_bag(path: Path, robot=True, reference=True) -> dict:
+    """A regulation segment (known overshoot, settling) then a straight-line segment
+    (known deviation); returns the expected values."""
+    w, ch = open_bag(path, **({} if robot else {'robot': None}))
+    # regulation: joint 1 steps 0 -> 1 rad with 20 % overshoot, joint 2 stays at 0.5
+    t = np.arange(7) * 0.5
+    q1 = np.array([0.0, 0.5, 1.2, 1.1, 1.01, 1.0, 1.0])
+    q = np.stack([q1, np.full(7, 0.5)], 1)
+    qd = np.tile([1.0, 0.0], (7, 1))
+    tau = np.tile([60.0, 5.0], (7, 1))
+    ref = q - 0.01  # tracking error exactly 0.01 rad
+    log = write_run(w, ch, 1_000_000_000, t, q, qd, tau, ref if reference else None,
+                    (np.array([[0.0, 0.5], [1.0, 0.5]]), np.array([0.0, 3.0])))
+    # straight line from (1.2, 0.3) to (0.6, 0.9); the tip runs 2 mm off it at mid-way
+    a, b = np.array([1.2, 0.3]), np.array([0.6, 0.9])
+    s = np.linspace(0, 1, 21)
+    normal = np.array([1.0, 1.0]) / np.sqrt(2)
+    off = 0.002 * np.sin(np.pi * s)
+    xy = a + s[:, None] * (b - a) + off[:, None] * normal
+    q_line = ik(xy)
+    path_xy = a + np.linspace(0, 1, 5)[:, None] * (b - a)
+    n = len(s)
+    write_run(w, ch, log + 10_000, np.arange(n) * 0.1, q_line, np.zeros((n, 2)),
+              np.zeros((n, 2)), q_line if reference else None,
+              (ik(path_xy), np.linspace(0, 2, 5)), path_xy, stamp0=10_000_000_000)
+    w.close()
+    return {'deviation_max': 0.002, 'deviation_rms': 0.002 * np.sqrt(np.mean(
+        np.sin(np.pi * s) ** 2))}
+
+
+def test_regulation_and_straight_line_segments_match_hand_values(tmp_path):
+    expected = synthetic_bag(tmp_path / 'bag')
+    rep = analyze(tmp_path / 'bag')
+    assert rep.robot_source == 'bag' and rep.warnings == []
+    reg, line = rep.segments
+    assert (reg.mode, line.mode) == ('regulation', 'straight_line')
+    assert reg.duration == pytest.approx(3.0) and reg.samples == 7
+    assert reg.overshoot[0] == pytest.approx(20.0)
+    assert reg.settling_time[0] == pytest.approx(2.0)  # t[4] - t[0] = 4 * 0.5 s
+    assert reg.settling_time[1] is None, 'joint 2 has no step'
+    assert reg.settling_time_overall == pytest.approx(2.0)
+    assert reg.tracking_rms == pytest.approx([0.01, 0.01], abs=1e-12)
+    assert reg.tracking_max == pytest.approx([0.01, 0.01], abs=1e-12)
+    assert reg.saturated_fraction == pytest.approx([1.0, 0.0])
+    assert reg.energy == pytest.approx(60.0 * 1.0 * 3.0)
+    assert line.deviation_max == pytest.approx(expected['deviation_max'], abs=1e-9)
+    assert line.deviation_rms == pytest.approx(expected['deviation_rms'], abs=1e-9)
+    assert line.tracking_rms == pytest.approx([0, 0], abs=1e-12)
+    doc = json.loads(json.dumps(rep.to_dict()))
+    assert doc['segments'][1]['deviation_max'] == pytest.approx(0.002, abs=1e-9)
+
+
+def test_without_reference_or_robot_record_the_set_point_and_defaults_are_used(tmp_path):
+    synthetic_bag(tmp_path / 'bag', robot=False, reference=False)
+    rep = analyze(tmp_path / 'bag')
+    assert rep.robot_source == 'defaults'
+    assert any('arm_sim_robot' in w for w in rep.warnings)
+    reg = rep.segments[0]
+    assert reg.reference == 'set_point'
+    assert reg.final_error == pytest.approx([0.0, 0.0])
+    assert reg.tracking_max[0] == pytest.approx(1.0), 'largest |q - set point| at t = 0'
+
+
+def test_bulk_decoder_ignores_padding_bytes_and_falls_back_for_odd_messages():
+    msgs = [bytearray(encode_joint_state(i * 10, ['joint1', 'joint2'], [i, 2.0],
+                                         [0.5, 1.0], [3.0, 4.0])) for i in range(5)]
+    msgs[2][35] = 0xAB  # a padding byte (after 'joint1\0' + before the next string)
+    msgs.append(bytearray(encode_joint_state(99, ['a'], [1.0], [], [])))
+    buf = np.frombuffer(b''.join(msgs), np.uint8)
+    lengths = np.array([len(m) for m in msgs])
+    offsets = np.r_[0, np.cumsum(lengths)[:-1]]
+    groups, bad = decode_joint_states_bulk(buf, offsets, lengths)
+    assert bad == 0 and [g.names for g in groups] == [('joint1', 'joint2'), ('a',)]
+    assert groups[0].position[:, 0] == pytest.approx(range(5))
+    assert groups[0].stamp.tolist() == [0, 10, 20, 30, 40]
+    assert np.isnan(groups[1].velocity).all()
+
+
+# ---------------------------------------------------------------------- damaged bags
+def test_truncated_bag_without_metadata_is_read_up_to_the_damage(tmp_path):
+    synthetic_bag(tmp_path / 'bag')
+    mcap = tmp_path / 'bag' / 'bag_0.mcap'
+    data = mcap.read_bytes()
+    bare = tmp_path / 'cut.mcap'
+    bare.write_bytes(data[:int(len(data) * 0.8)])
+    bag = read_bag(bare)
+    assert bag.truncated and any('truncated' in w for w in bag.warnings)
+    assert 0 < len(bag.joint_states) <= 28
+    (tmp_path / 'bag' / 'metadata.yaml').unlink()
+    assert len(read_bag(tmp_path / 'bag').joint_states) == 28
+
+
+def test_ros2_control_style_bag_with_only_joint_states_gives_torque_metrics(tmp_path):
+    w = BagWriter(tmp_path / 'foreign')
+    from arm_bag.msgdefs import schema_text
+    ch = w.add_topic('/joint_states', 'sensor_msgs/msg/JointState',
+                     schema_text('sensor_msgs/msg/JointState'))
+    for i in range(10):
+        w.write(ch, encode_joint_state(i * 10_000_000, ['shoulder', 'elbow'], [0.1 * i, 0],
+                                       [1.0, 0.0], [2.0, 0.0]), 1000 + i)
+    w.close()
+    rep = analyze(tmp_path / 'foreign')
+    assert rep.joint_names == ['shoulder', 'elbow']
+    assert rep.run['energy'] == pytest.approx(2.0 * 0.09)
+    assert rep.segments[0].mode is None and rep.segments[0].tracking_rms is None
+    assert any('joint_trajectory' in w for w in rep.warnings)
+
+
+def test_write_error_leaves_a_readable_bag_and_names_the_file(tmp_path):
+    """ENOSPC is simulated by swapping the file object for /dev/full (the real full disk
+    is tested with the recorder on a tmpfs in test_recorder.py)."""
+    w, ch = open_bag(tmp_path / 'bag', chunk_size=1 << 30)
+    t = np.arange(10) * 0.01
+    z = np.zeros((10, 2))
+    write_run(w, ch, 1000, t, z, z, z, None)
+    w.flush()
+    good = w.path.stat().st_size
+    w._file.close()
+    w._file = open('/dev/full', 'wb')  # noqa: SIM115  (the writer reopens its own file)
+    write_run(w, ch, 10**9, t, z, z, z, None)
+    with pytest.raises(BagWriteError, match='No space left'):
+        w.flush_chunk()
+    w.close()
+    assert w.path.stat().st_size > good, 'summary and footer written after the failure'
+    # close() retried the failed chunk, which fits now that the 'disk' has space again
+    bag = read_bag(tmp_path / 'bag')
+    assert len(bag.joint_states) == 20 and not bag.truncated and bag.warnings == []
+
+
+# ---------------------------------------------------------------------- CLI
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, '-m', 'arm_bag.cli', 'analyze', *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=60)
+
+
+def test_cli_table_json_plot_and_comparison(tmp_path):
+    synthetic_bag(tmp_path / 'a')
+    synthetic_bag(tmp_path / 'b', reference=False)
+    out = run_cli(str(tmp_path / 'a'), str(tmp_path / 'b'), '--plot', str(tmp_path / 'p.png'))
+    assert out.returncode == 0, out.stderr
+    header = out.stdout.splitlines()[0]
+    assert str(tmp_path / 'a') in header and str(tmp_path / 'b') in header
+    assert 'overshoot [%]' in out.stdout and (tmp_path / 'p.png').stat().st_size > 10_000
+    doc = json.loads(run_cli(str(tmp_path / 'a'), '--json').stdout)
+    assert doc['segments'][0]['overshoot'][0] == pytest.approx(20.0)
+
+
+@pytest.mark.parametrize('kind, code', [('missing', 4), ('garbage', 4), ('empty_dir', 4),
+                                        ('no_messages', 3), ('usage', 2)])
+def test_cli_errors_are_one_line_with_a_distinct_exit_code(tmp_path, kind, code):
+    target = tmp_path / kind
+    if kind == 'garbage':
+        target = tmp_path / 'x.mcap'
+        target.write_bytes(b'not an mcap file at all')
+    elif kind == 'empty_dir':
+        target.mkdir()
+    elif kind == 'no_messages':
+        BagWriter(target).close()
+    out = run_cli('--bogus') if kind == 'usage' else run_cli(str(target))
+    assert out.returncode == code, out.stderr
+    assert 'Traceback' not in out.stderr
+    errors = [line for line in out.stderr.splitlines() if not line.startswith('warning:')]
+    assert kind == 'usage' or len(errors) == 1, out.stderr
