@@ -1,117 +1,181 @@
 """``arm-sim``: the terminal front end of arm_sim (works in a plain venv, no ros2 CLI).
 
-Sub-commands print one line and exit non-zero on error, never a traceback.
+Sub-commands: ``demo``, ``bringup``, ``goal``, ``analyze``. Errors are one line on stderr
+and a non-zero exit code, never a traceback.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from arm_sim.launcher import NodeProcess, config_file
-
 EXIT_ERROR = 1
+EXIT_REFUSED = 3
+EXIT_TIMEOUT = 4
 
 
 class CliError(Exception):
-    """A user-facing failure: printed as one line, exit code 1."""
+    """A user-facing failure: printed as one line, exit code ``code``."""
+
+    def __init__(self, message: str, code: int = EXIT_ERROR) -> None:
+        super().__init__(message)
+        self.code = code
 
 
 def _domain(args: argparse.Namespace) -> int:
-    return args.domain_id if args.domain_id is not None else int(
-        os.environ.get('ROS_DOMAIN_ID', '0'))
+    from arm_sim.demo import default_domain
+
+    return args.domain_id if args.domain_id is not None else default_domain()
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """Release the arm under gravity in the simulator and report what it did."""
-    import rclpy
-    from sensor_msgs.msg import JointState
-    from std_srvs.srv import Trigger
+    """The lecture's tasks, recorded, analysed and drawn."""
+    from arm_bag.analysis import analyze
+    from arm_bag.plot import plot_report
+    from arm_sim.client import SuiteError
+    from arm_sim.demo import Demo, summary_table
 
-    from arm_dynamics import TwoLinkArm
-
-    domain = _domain(args)
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    log_dir = args.log_dir
-    os.makedirs(log_dir, exist_ok=True)
-    print(f'arm-sim demo: starting the simulator (ROS domain {domain}, localhost only; '
-          f'logs in {log_dir}/)')
-    sim = NodeProcess('simulator', params_file=config_file(), domain_id=domain,
-                      params={'timing_mode': 'real_time', 'command_timeout': 0.0,
-                              'real_time_factor': args.real_time_factor},
-                      log_path=os.path.join(log_dir, 'simulator.log'))
-    rclpy.init(domain_id=domain)
-    node = rclpy.create_node('arm_sim_demo')
-    states: list = []
-    node.create_subscription(JointState, 'joint_states', states.append, 1000)
+    out = Path(args.out) if args.out else Path('runs') / time.strftime('demo-%Y%m%d-%H%M%S')
+    if out.exists():
+        raise CliError(f'{out} exists; choose another --out')
+    started = time.monotonic()
+    print(f'arm-sim demo: regulation and straight-line tracking on the simulated 2-R arm '
+          f'(output in {out}/)')
+    demo = Demo(out, _domain(args), fast=args.fast, slow=args.slow)
     try:
-        deadline = time.monotonic() + 30.0
-        while not states:
-            if not sim.alive():
-                raise CliError(f'the simulator exited: {sim.output().strip()[-500:]}')
-            if time.monotonic() > deadline:
-                raise CliError('no joint_states from the simulator within 30 s')
-            rclpy.spin_once(node, timeout_sec=0.1)
-        # The simulator started before we listened: reset it so we watch the whole release.
-        client = node.create_client(Trigger, 'simulator/reset')
-        if not client.wait_for_service(timeout_sec=10.0):
-            raise CliError('the simulator offers no reset service')
-        future = client.call_async(Trigger.Request())
-        rclpy.spin_until_future_complete(node, future, timeout_sec=10.0)
-        if not (future.done() and future.result().success):
-            raise CliError('the simulator did not reset')
-        t0 = _stamp(states[-1])
-        start = len(states) - 1
-        print('  the arm is released from rest under gravity, no torque applied')
-        shown, progress = t0, (time.monotonic(), t0)
-        while _stamp(states[-1]) < t0 + args.duration:
-            rclpy.spin_once(node, timeout_sec=0.1)
-            if not sim.alive():
-                raise CliError('the simulator exited unexpectedly; see its log')
-            t = _stamp(states[-1])
-            if t > progress[1]:
-                progress = (time.monotonic(), t)
-            elif time.monotonic() - progress[0] > 10.0:
-                raise CliError(f'simulated time stopped at {t:.2f} s; see {sim.log_path}')
-            if t >= shown + 0.5:
-                shown = t
-                q = states[-1].position
-                print(f'  t = {t - t0:4.1f} s   q1 = {q[0]:+.3f} rad   q2 = {q[1]:+.3f} rad')
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-        code = sim.stop()
-    _report_release(states[start:], TwoLinkArm())
-    if code not in (0, -2):
-        raise CliError(f'the simulator exited with code {code}; see {sim.log_path}')
+        bag = demo.run()
+    except SuiteError as exc:
+        raise CliError(str(exc)) from None
+    report = analyze(bag)
+    for warning in report.warnings:
+        print(f'warning: {warning}')
+    doc = report.to_dict()
+    print('\nthe lecture\'s questions, answered (full metrics: arm-sim analyze):')
+    print(summary_table(demo.results, doc['segments'], doc['effort_limits']))
+    picture = plot_report(report, out / 'report.png')
+    print(f'\ndone in {time.monotonic() - started:.0f} s.')
+    print(f'  bag:     {bag}/  (rosbag2, MCAP: {next(bag.glob("*.mcap")).name})')
+    print(f'  picture: {picture}')
+    print(f'  table again: arm-sim analyze {bag} [--plot FILE.png] [--json]')
+    print('  Foxglove: Open local file -> the .mcap; PlotJuggler: Load data -> the .mcap '
+          '(plot /joint_states/position[0] against /arm_controller/reference/position[0]); '
+          f'ROS 2: ros2 bag info {bag}')
     return 0
 
 
-def _stamp(msg) -> float:
-    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+def cmd_bringup(args: argparse.Namespace) -> int:
+    """Start the suite and keep it running until Ctrl-C."""
+    from arm_sim.launcher import NodeProcess, config_file
+
+    domain = _domain(args)
+    out = Path(args.out) if args.out else Path('runs') / time.strftime('bringup-%Y%m%d-%H%M%S')
+    (out / 'logs').mkdir(parents=True, exist_ok=True)
+    ns = args.namespace
+    nodes = ['simulator', 'controller', 'planner'] + (['recorder'] if args.record else [])
+    procs = []
+    for name in nodes:
+        params = {'timing_mode': args.timing_mode} if name == 'simulator' else {}
+        if name == 'recorder':
+            params = {'output': str(out / 'bag')}
+        remaps = {'/clock': 'clock'} if ns else None
+        procs.append(NodeProcess(name, params_file=config_file(), params=params,
+                                 namespace=ns or None, remaps=remaps, domain_id=domain,
+                                 log_path=out / 'logs' / f'{name}.log'))
+    print(f'arm-sim bringup: {", ".join(nodes)} running on ROS domain {domain} '
+          f'(namespace {ns or "/"}, simulator {args.timing_mode}); logs in {out}/logs')
+    print(f'  send goals from another terminal: ROS_DOMAIN_ID={domain} arm-sim goal X Y '
+          f'[--mode straight_line]{" --namespace " + ns if ns else ""}')
+    print('  stop with Ctrl-C')
+    try:
+        while all(p.alive() for p in procs):
+            time.sleep(0.2)  # supervising child processes: nothing to spin
+        dead = [p for p in procs if not p.alive()]
+        raise CliError(f'{dead[0].name} exited with code {dead[0].proc.returncode}; see '
+                       f'{dead[0].log_path}')
+    except KeyboardInterrupt:
+        print('\nstopping ...')
+    finally:
+        codes = {p.name: p.stop(signal.SIGINT) for p in procs}
+    print('stopped: ' + ', '.join(f'{n} ({c})' for n, c in codes.items()))
+    if args.record:
+        print(f'bag: {out / "bag"}  (arm-sim analyze {out / "bag"})')
+    return 0
 
 
-def _report_release(states: list, arm) -> None:
-    t = np.array([_stamp(m) for m in states])
-    q = np.array([m.position for m in states])
-    qd = np.array([m.velocity for m in states])
-    kinetic, potential = arm.energy(q, qd)
-    total = kinetic + potential
-    tip = arm.forward_kinematics(q)
-    print(f'\nwhat the arm did over {t[-1] - t[0]:.2f} s of simulated time '
-          f'({len(states)} joint states):')
-    print(f'  shoulder q1 swung between {q[:, 0].min():+.3f} and {q[:, 0].max():+.3f} rad; '
-          f'elbow q2 between {q[:, 1].min():+.3f} and {q[:, 1].max():+.3f} rad')
-    print(f'  fastest joint speed {np.abs(qd).max():.2f} rad/s; the tip fell to '
-          f'y = {tip[:, 1].min():+.3f} m (started at y = {tip[0, 1]:+.3f} m)')
-    drift = np.abs(total - total[0]).max()
-    print(f'  total energy {total[0]:.4f} J at the start, drift {drift:.2e} J '
-          f'({drift / max(abs(total[0]), kinetic.max()):.1e} relative: energy is conserved '
-          'with no damping and no torque)')
+def cmd_goal(args: argparse.Namespace) -> int:
+    """Send one goal to a running suite and report what became of it."""
+    from arm_dynamics import TwoLinkArm
+    from arm_sim.client import SuiteClient, SuiteError
+
+    if not (np.isfinite(args.x) and np.isfinite(args.y)):
+        raise CliError(f'goal must be finite, got ({args.x}, {args.y})')
+    domain = _domain(args)
+    client = SuiteClient(domain, args.namespace)
+    try:
+        try:
+            client.spin_until(lambda: client.states, args.timeout,
+                              f'joint_states on ROS domain {domain} (is the suite running? '
+                              'arm-sim bringup)')
+            params = {}
+            if args.mode:
+                params['mode'] = args.mode
+            if args.duration is not None:
+                params['duration'] = args.duration
+            if params:
+                client.set_params('planner', **params)
+            client.spin_until(lambda: client.subscribed('goal_pose', 'planner'), args.timeout,
+                              'the planner to subscribe goal_pose')
+        except SuiteError as exc:
+            raise CliError(str(exc), EXIT_TIMEOUT) from None
+        n_traj, n_diag = len(client.trajectories), len(client.diagnostics)
+        client.publish_goal(args.x, args.y, args.frame)
+
+        def refusal():
+            return next((m for node, _, m in client.diagnostics[n_diag:]
+                         if node == 'planner' and m.startswith('goal_')), None)
+
+        try:
+            client.spin_until(lambda: len(client.trajectories) > n_traj or refusal(),
+                              args.timeout, 'the planner to answer')
+        except SuiteError as exc:
+            raise CliError(str(exc), EXIT_TIMEOUT) from None
+        if refusal():
+            raise CliError(f'refused: {refusal().split(": ", 1)[-1]}', EXIT_REFUSED)
+        traj = client.trajectories[-1]
+        end = traj.points[-1].time_from_start
+        duration = end.sec + end.nanosec * 1e-9
+        print(f'planned: {len(traj.points)} point(s), {duration:.2f} s of motion')
+        arm = TwoLinkArm()  # the tip error below uses the shipped link lengths
+        goal = np.array([args.x, args.y])
+        t0 = client.sim_time
+
+        def reached():
+            state = client.states[-1]
+            tip = arm.forward_kinematics(np.array(state.position))
+            return (client.sim_time >= t0 + duration
+                    and np.hypot(*(tip - goal)) < args.tolerance
+                    and np.abs(state.velocity).max() < 1e-2)
+
+        try:
+            client.spin_until(reached, args.timeout + duration, 'the arm to reach the goal')
+        except SuiteError:
+            tip = arm.forward_kinematics(np.array(client.states[-1].position))
+            raise CliError(f'timed out: the tip is at ({tip[0]:.4f}, {tip[1]:.4f}) m, '
+                           f'{np.hypot(*(tip - goal)) * 1e3:.1f} mm from the goal',
+                           EXIT_TIMEOUT) from None
+        tip = arm.forward_kinematics(np.array(client.states[-1].position))
+        print(f'reached: tip at ({tip[0]:.4f}, {tip[1]:.4f}) m, '
+              f'{np.hypot(*(tip - goal)) * 1e3:.2f} mm from the goal, at simulated t = '
+              f'{client.sim_time:.2f} s')
+        return 0
+    finally:
+        client.close()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -119,29 +183,77 @@ def build_parser() -> argparse.ArgumentParser:
         prog='arm-sim', description='arm_sim: a simulated 2-R robot arm on ROS 2 Jazzy. '
         'Runs the nodes as processes; no ros2 command line needed.')
     sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
+
+    def domain_arg(p):
+        p.add_argument('--domain-id', type=int, default=None,
+                       help='ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID, else a private one '
+                       'for demo/bringup)')
+
     demo = sub.add_parser(
-        'demo', help='run the demo and print what happened',
-        description='Start the simulator, release the arm under gravity, print its motion '
-        'and check that energy is conserved.')
-    demo.add_argument('--duration', type=float, default=3.0,
-                      help='simulated time to run [s] (default 3)')
-    demo.add_argument('--real-time-factor', type=float, default=1.0,
-                      help='simulated seconds per wall second (default 1)')
-    demo.add_argument('--domain-id', type=int, default=None,
-                      help='ROS_DOMAIN_ID to use (default: $ROS_DOMAIN_ID or 0)')
-    demo.add_argument('--log-dir', default='runs/logs',
-                      help='where node logs go (default runs/logs)')
+        'demo', help='run the lecture tasks, record them and print the analysis',
+        description='Start simulator (lockstep), controller, planner and recorder; move the '
+        'tip from Ps to Pf (regulation), then along the straight line Pf -> Ps slowly and '
+        'fast under computed torque, and fast under plain PD. Prints how much torque, how '
+        'much deviation and how long to settle, and writes a report picture.')
+    demo.add_argument('--out', default=None,
+                      help='output directory (default runs/demo-<time>)')
+    demo.add_argument('--fast', type=float, default=0.8,
+                      help='duration of the fast straight line [s] (default 0.8)')
+    demo.add_argument('--slow', type=float, default=3.0,
+                      help='duration of the slow straight line [s] (default 3)')
+    domain_arg(demo)
     demo.set_defaults(func=cmd_demo)
+
+    bring = sub.add_parser(
+        'bringup', help='start the suite and keep it running (Ctrl-C stops it)',
+        description='Start simulator, controller, planner (and recorder) with '
+        'config/arm.yaml and wait; drive it with arm-sim goal.')
+    bring.add_argument('--timing-mode', default='real_time',
+                       choices=('real_time', 'lockstep', 'as_fast_as_possible'),
+                       help='simulator timing (default real_time: watchable)')
+    bring.add_argument('--namespace', default='', help='namespace for all nodes and topics')
+    bring.add_argument('--no-record', dest='record', action='store_false',
+                       help='do not start the recorder')
+    bring.add_argument('--out', default=None,
+                       help='output directory (default runs/bringup-<time>)')
+    domain_arg(bring)
+    bring.set_defaults(func=cmd_bringup)
+
+    goal = sub.add_parser(
+        'goal', help='send an end-effector goal to a running suite and wait for the outcome',
+        description='Publish goal_pose (x, y in the base frame) and report: reached (exit 0), '
+        'refused with the reason (exit 3) or timed out (exit 4).')
+    goal.add_argument('x', type=float, help='goal x [m]')
+    goal.add_argument('y', type=float, help='goal y [m]')
+    goal.add_argument('--mode', choices=('regulation', 'straight_line'), default=None,
+                      help="set the planner's mode first (default: keep it)")
+    goal.add_argument('--duration', type=float, default=None,
+                      help='set the motion duration [s] first (0 = from speed limits)')
+    goal.add_argument('--frame', default='base_link', help='goal frame_id (default base_link)')
+    goal.add_argument('--namespace', default='', help="the suite's namespace")
+    goal.add_argument('--tolerance', type=float, default=1e-3,
+                      help='tip distance counting as reached [m] (default 0.001)')
+    goal.add_argument('--timeout', type=float, default=20.0,
+                      help='wall-clock seconds to wait beyond the motion (default 20)')
+    goal.add_argument('--domain-id', type=int, default=None,
+                      help='ROS_DOMAIN_ID of the suite (default: $ROS_DOMAIN_ID or 0)')
+    goal.set_defaults(func=cmd_goal)
+
+    from arm_bag.cli import add_analyze_parser
+
+    add_analyze_parser(sub)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.command == 'goal' and args.domain_id is None:
+        args.domain_id = int(os.environ.get('ROS_DOMAIN_ID', '0'))
     try:
         return args.func(args)
     except CliError as exc:
         print(f'arm-sim {args.command}: {exc}', file=sys.stderr)
-        return EXIT_ERROR
+        return exc.code
     except KeyboardInterrupt:
         print(f'arm-sim {args.command}: interrupted', file=sys.stderr)
         return 130

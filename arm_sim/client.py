@@ -1,0 +1,127 @@
+"""A small rclpy client for a running arm_sim suite: what ``arm-sim`` talks through.
+
+Watches ``joint_states``, the planner's trajectories and ``/diagnostics``, publishes
+goals and sets parameters through the standard parameter services.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+from rcl_interfaces.srv import SetParameters
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+
+from arm_sim.ros_common import set_parameters_request
+
+
+class SuiteError(Exception):
+    """Something the suite did not do; the message is for the user."""
+
+
+def stamp_of(msg) -> float:
+    """A message's header stamp [s]."""
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+class SuiteClient:
+    """Client of the suite in ``namespace`` on ROS domain ``domain_id``."""
+
+    def __init__(self, domain_id: int, namespace: str = '') -> None:
+        self.ns = namespace.rstrip('/')
+        if self.ns and not self.ns.startswith('/'):
+            self.ns = '/' + self.ns
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node('arm_sim_cli', namespace=self.ns or '/',
+                                      context=self.context)
+        self.states: list[JointState] = []
+        self.trajectories: list[JointTrajectory] = []
+        self.diagnostics: list[tuple[str, str, str]] = []  # (node, level, message)
+        n = self.node
+        n.create_subscription(JointState, 'joint_states', self._keep_state, 100)
+        n.create_subscription(JointTrajectory, 'arm_controller/joint_trajectory',
+                              self.trajectories.append, 10)
+        n.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 100)
+        self.goal_pub = n.create_publisher(PoseStamped, 'goal_pose', 10)
+        self._clients: dict[str, object] = {}
+
+    def _keep_state(self, msg: JointState) -> None:
+        self.states.append(msg)
+        if len(self.states) > 20000:
+            del self.states[:10000]
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        for s in msg.status:
+            if s.name.startswith(self.ns + '/') and s.name.count('/') == self.ns.count('/') + 1:
+                self.diagnostics.append((s.name.rsplit('/', 1)[1], s.level, s.message))
+
+    def node_name(self, name: str) -> str:
+        return f'{self.ns}/{name}'
+
+    def spin_until(self, condition: Callable[[], object], timeout: float, what: str,
+                   alive: Callable[[], None] | None = None) -> object:
+        """Spin until ``condition()`` is truthy; SuiteError after ``timeout`` s (wall).
+        ``alive`` may raise if a process the wait depends on died."""
+        end = time.monotonic() + timeout
+        while True:
+            value = condition()
+            if value:
+                return value
+            if alive:
+                alive()
+            if time.monotonic() > end:
+                raise SuiteError(f'timed out after {timeout:g} s waiting for {what}')
+            self._spin_once()
+
+    def _spin_once(self) -> None:
+        executor = getattr(self, '_executor', None)
+        if executor is None:
+            from rclpy.executors import SingleThreadedExecutor
+            executor = self._executor = SingleThreadedExecutor(context=self.context)
+            executor.add_node(self.node)
+        executor.spin_once(timeout_sec=0.02)
+
+    @property
+    def sim_time(self) -> float:
+        return stamp_of(self.states[-1]) if self.states else -math.inf
+
+    def set_params(self, node: str, timeout: float = 10.0, **values) -> None:
+        """Set parameters of ``node`` (e.g. 'planner'); SuiteError with the node's reason
+        if refused."""
+        name = self.node_name(node)
+        client = self._clients.get(name)
+        if client is None:
+            client = self._clients[name] = self.node.create_client(
+                SetParameters, f'{name}/set_parameters')
+        self.spin_until(client.service_is_ready, timeout, f'the {name} parameter service')
+        future = client.call_async(set_parameters_request(values))
+        self.spin_until(future.done, timeout, f'{name} to set {sorted(values)}')
+        for key, result in zip(values, future.result().results):
+            if not result.successful:
+                raise SuiteError(f'{name} refused {key}={values[key]!r}: {result.reason}')
+
+    def publish_goal(self, x: float, y: float, frame: str = 'base_link') -> None:
+        msg = PoseStamped()
+        msg.header.frame_id = frame
+        msg.pose.position.x, msg.pose.position.y = float(x), float(y)
+        msg.pose.orientation.w = 1.0
+        self.goal_pub.publish(msg)
+
+    def subscribed(self, topic: str, node: str) -> bool:
+        """Is ``node`` subscribed to ``topic`` (relative to the namespace)?"""
+        full = topic if topic.startswith('/') else f'{self.ns}/{topic}'
+        return any(i.node_name == node for i in
+                   self.node.get_subscriptions_info_by_topic(full))
+
+    def close(self) -> None:
+        executor = getattr(self, '_executor', None)
+        if executor is not None:
+            executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)

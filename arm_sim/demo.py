@@ -1,0 +1,217 @@
+"""``arm-sim demo``: the lecture's two tasks on the simulated arm, recorded and analysed.
+
+Starts simulator (lockstep), controller, planner and recorder as separate processes with
+``config/arm.yaml``, then drives a fixed scenario. Every goal takes effect at an exact
+simulated time: the simulator pauses there (``pause_at``), the goal is planned from the
+paused state and the controller accepts it before time moves on, so two runs record the
+same joint states.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from arm_bag.recorder_node import DEFAULT_TOPICS
+from arm_dynamics import TwoLinkArm
+from arm_sim.client import SuiteClient, SuiteError
+from arm_sim.launcher import NodeProcess, config_file
+
+PF = (0.5, 1.2)  # m: the regulation goal
+SETTLE = 1.0  # s of simulated time after each planned motion
+PERIOD = 0.01  # s, the control period in config/arm.yaml (publish_rate 100 Hz)
+PD_GAINS = {'gains.kp': [600.0, 300.0], 'gains.kd': [60.0, 25.0]}  # N m/rad, N m s/rad
+
+
+@dataclass(frozen=True)
+class TaskResult:
+    """What one task did: planned motion time [s] and the tip's distance to the goal
+    after settling [m]."""
+
+    task: Task
+    motion: float
+    tip_error: float
+
+
+@dataclass(frozen=True)
+class Task:
+    """One step of the scenario: goal [m] and the parameters it runs with."""
+
+    label: str
+    goal: tuple[float, float]
+    planner: dict = field(default_factory=dict)
+    controller: dict = field(default_factory=dict)
+
+
+def scenario(ps: tuple[float, float], fast: float = 0.8, slow: float = 3.0) -> list[Task]:
+    """Regulation Ps -> Pf, then the line Pf -> Ps slow and fast under computed torque,
+    and fast under plain PD (regulation moves return to Pf in between)."""
+    ct = {'law': 'computed_torque'}
+    regulation = {'mode': 'regulation', 'duration': 0.0}  # duration from the speed limits
+    back = Task('regulation, back to Pf', PF, regulation, ct)
+    line = {'mode': 'straight_line', 'time_scaling': 'quintic'}
+    return [
+        Task('regulation Ps -> Pf (computed torque)', PF, regulation, ct),
+        Task(f'straight line Pf -> Ps, slow ({slow:g} s, computed torque)', ps,
+             {**line, 'duration': slow}, ct),
+        back,
+        Task(f'straight line Pf -> Ps, fast ({fast:g} s, computed torque)', ps,
+             {**line, 'duration': fast}, ct),
+        back,
+        Task(f'straight line Pf -> Ps, fast ({fast:g} s, plain PD)', ps,
+             {**line, 'duration': fast}, {'law': 'pd', **PD_GAINS}),
+    ]
+
+
+def start_pose(config: Path) -> tuple[TwoLinkArm, np.ndarray]:
+    """The arm and its initial joint positions as config/arm.yaml defines them."""
+    data = yaml.safe_load(config.read_text())
+    robot = data.get('/**', {}).get('ros__parameters', {})
+    sim = data.get('/**/simulator', {}).get('ros__parameters', {})
+    keys = ('link_lengths', 'com_distances', 'link_masses', 'link_inertias', 'gravity',
+            'joint_damping')
+    arm = TwoLinkArm(**{k: robot[k] for k in keys if k in robot})
+    return arm, np.array(sim.get('initial_positions', [-0.4, 1.2]), dtype=float)
+
+
+class Demo:
+    """Runs the scenario; ``out`` gets ``bag/``, ``report.png`` and ``logs/``."""
+
+    def __init__(self, out: Path, domain_id: int, fast: float, slow: float,
+                 echo=print) -> None:
+        self.out = out
+        self.domain = domain_id
+        self.echo = echo
+        self.config = config_file()
+        self.arm, self.q0 = start_pose(self.config)
+        ps = tuple(float(v) for v in self.arm.forward_kinematics(self.q0))
+        self.tasks = scenario(ps, fast, slow)
+        self.procs: list[NodeProcess] = []
+        self.results: list[TaskResult] = []
+
+    def _start(self, name: str, **params) -> None:
+        self.procs.append(NodeProcess(
+            name, params_file=self.config, params=params, domain_id=self.domain,
+            log_path=self.out / 'logs' / f'{name}.log'))
+
+    def _alive(self) -> None:
+        for p in self.procs:
+            if not p.alive():
+                raise SuiteError(f'{p.name} exited with code {p.proc.returncode}: '
+                                 f'{p.output().strip()[-300:]} (log: {p.log_path})')
+
+    def run(self) -> Path:
+        """Run everything; returns the bag directory."""
+        (self.out / 'logs').mkdir(parents=True, exist_ok=True)
+        bag = self.out / 'bag'
+        self.echo(f'starting simulator, controller, planner and recorder (ROS domain '
+                  f'{self.domain}, localhost only; logs in {self.out / "logs"})')
+        self._start('recorder', output=str(bag))
+        self._start('simulator', timing_mode='lockstep', pause_at=0.0)
+        self._start('controller')
+        self._start('planner')
+        client = SuiteClient(self.domain)
+        try:
+            self._drive(client)
+        finally:
+            client.close()
+            codes = {p.name: p.stop(signal.SIGINT) for p in self.procs}
+        bad = {n: c for n, c in codes.items() if c not in (0, -signal.SIGINT)}
+        if bad:
+            raise SuiteError(f'processes did not stop cleanly: {bad}; see {self.out}/logs')
+        return bag
+
+    def _drive(self, c: SuiteClient) -> None:
+        wait = 30.0
+        needed = [('recorder', t) for t in DEFAULT_TOPICS] + [
+            ('controller', 'joint_states'), ('controller', 'arm_controller/joint_trajectory'),
+            ('planner', 'joint_states'), ('planner', 'goal_pose')]
+        for node, topic in needed:
+            c.spin_until(lambda n=node, t=topic: c.subscribed(t, n), wait,
+                         f'the {node} to subscribe {topic}', self._alive)
+        t_next = 0.5
+        self.echo(f'the arm starts at rest at q = {self.q0.tolist()} rad, tip Ps = '
+                  f'({self.tasks[1].goal[0]:.3f}, {self.tasks[1].goal[1]:.3f}) m, held by '
+                  'the controller')
+        self._run_to(c, t_next)
+        accepted = 0
+        for k, task in enumerate(self.tasks, 1):
+            c.set_params('planner', **task.planner)
+            if task.controller:
+                c.set_params('controller', **task.controller)
+            n_traj = len(c.trajectories)
+            c.publish_goal(*task.goal)
+            c.spin_until(lambda n=n_traj: len(c.trajectories) > n or self._refusal(c), wait,
+                         'the plan', self._alive)
+            refusal = self._refusal(c)
+            if refusal:
+                raise SuiteError(f'task {k} ({task.label}): planner refused: {refusal}')
+            accepted += 1
+            c.spin_until(lambda a=accepted: self._accepted(c) >= a, wait,
+                         'the controller to accept the trajectory', self._alive)
+            pts = c.trajectories[-1].points
+            dur = pts[-1].time_from_start.sec + pts[-1].time_from_start.nanosec * 1e-9
+            t_start = t_next
+            t_next = round((t_next + dur + SETTLE) / PERIOD) * PERIOD
+            self.echo(f'[{k}/{len(self.tasks)}] t = {t_start:5.2f} s  {task.label}: '
+                      f'{len(pts)} points over {dur:.2f} s')
+            self._run_to(c, t_next)
+            tip = self.arm.forward_kinematics(np.array(c.states[-1].position))
+            miss = float(np.hypot(*(tip - np.array(task.goal))))
+            self.results.append(TaskResult(task, dur, miss))
+            self.echo(f'        tip at ({tip[0]:.4f}, {tip[1]:.4f}) m, {miss * 1e3:.2f} mm '
+                      'from the goal after settling')
+
+    def _run_to(self, c: SuiteClient, t: float) -> None:
+        c.set_params('simulator', pause_at=t)
+        c.spin_until(lambda: c.sim_time >= t - 1e-9, 60.0, f'simulated time {t:.2f} s',
+                     self._alive)
+
+    @staticmethod
+    def _refusal(c: SuiteClient) -> str | None:
+        for node, _level, message in reversed(c.diagnostics):
+            if node == 'planner' and message.startswith('goal_'):
+                return message
+        return None
+
+    @staticmethod
+    def _accepted(c: SuiteClient) -> int:
+        return sum(1 for node, _l, m in c.diagnostics
+                   if node == 'controller' and m.startswith('trajectory_accepted'))
+
+
+def default_domain() -> int:
+    env = os.environ.get('ROS_DOMAIN_ID')
+    return int(env) if env else 120 + os.getpid() % 100
+
+
+def summary_table(results: list[TaskResult], segments: list[dict],
+                  effort_limits: list[float]) -> str:
+    """One row per task: the lecture's questions (how much torque, how much deviation, how
+    long to settle, does it stay) answered from the analysed bag segments."""
+    head = ('task', 'motion s', 'peak |tau| N m', 'line dev. mm', 'settle s', 'tip err mm')
+    rows = []
+    if len(results) != len(segments):
+        rows.append((f'(the bag has {len(segments)} segments for {len(results)} tasks: '
+                     'rows may not match)', '', '', '', '', ''))
+    for res, seg in zip(results, segments):
+        peak = seg.get('torque_peak') or [float('nan')] * 2
+        dev = seg.get('deviation_max')
+        settle = seg.get('settling_time_overall')
+        rows.append((res.task.label, f'{res.motion:.2f}',
+                     ' / '.join(f'{p:.1f}' for p in peak),
+                     '-' if dev is None else f'{dev * 1e3:.2f}',
+                     '-' if settle is None else f'{settle:.2f}',
+                     f'{res.tip_error * 1e3:.2f}'))
+    widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
+    fmt = '  '.join(f'{{:{"<" if i == 0 else ">"}{w}}}' for i, w in enumerate(widths))
+    lines = [fmt.format(*head), '  '.join('-' * w for w in widths)]
+    lines += [fmt.format(*r) for r in rows]
+    lines.append(f'(effort limits {effort_limits[0]:g} / {effort_limits[1]:g} N m; line '
+                 'deviation = largest distance of the tip from the commanded line)')
+    return '\n'.join(lines)
