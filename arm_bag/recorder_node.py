@@ -19,7 +19,7 @@ import json
 import time
 from pathlib import Path
 
-import rclpy
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
@@ -258,9 +258,9 @@ class RecorderNode(Node):
         super().destroy_node()
 
 
-def _spin(executor, node: RecorderNode) -> None:
+def _spin(executor, node: RecorderNode, running) -> None:
     # After a write failure, linger LINGER s so /diagnostics subscribers get the report.
-    while rclpy.ok() and (node.failed is None or time.monotonic() < node.failed_at + LINGER):
+    while running() and (node.failed is None or time.monotonic() < node.failed_at + LINGER):
         executor.spin_once(timeout_sec=0.1)
 
 
@@ -272,7 +272,8 @@ def main(args: list[str] | None = None) -> int:
         return nodes[-1]
 
     code = run_node(factory, prog='recorder', summary=SUMMARY,
-                    specs=ROBOT_PARAMS + RECORDER_PARAMS, args=args, spin=_spin)
+                    specs=ROBOT_PARAMS + RECORDER_PARAMS, args=args, spin=_spin,
+                    executor_type=SingleThreadedExecutor)
     if nodes and nodes[0].failed:
         return 1
     return code

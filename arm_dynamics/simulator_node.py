@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import time
 
-import rclpy
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -344,8 +343,8 @@ class SimulatorNode(Node):
         return response
 
 
-def _spin(executor, node: SimulatorNode) -> None:
-    while rclpy.ok():
+def _spin(executor, node: SimulatorNode, running) -> None:
+    while running():
         if node.free_running():
             executor.spin_once(timeout_sec=0.0)
             node.step_free()
