@@ -10,6 +10,7 @@ parameters are read-only.
 from __future__ import annotations
 
 import math
+import time
 from typing import Any
 
 import numpy as np
@@ -39,6 +40,7 @@ from arm_sim.ros_common import (
     declare_parameters,
     on_parameter_changes,
     run_node,
+    steady_clock,
 )
 
 SUMMARY = '''
@@ -139,6 +141,8 @@ def path_message(plan: Plan, frame: str, stamp) -> Path:
     return msg
 
 
+CONTROLLER_WAIT = 5.0  # s (wall): how long a plan waits for a controller to subscribe
+
 class PlannerNode(Node):
     """See the module docstring."""
 
@@ -164,6 +168,8 @@ class PlannerNode(Node):
         self.create_subscription(PoseStamped, 'goal_pose', self._on_goal, 10)
         self.diag = Diagnostics(self)
         self.diag.set('OK', 'waiting for joint_states', plans=0)
+        self.pending: tuple | None = None  # (plan, wall deadline) awaiting a controller
+        self.create_timer(0.02, self._send_pending, clock=steady_clock())
         on_parameter_changes(self, PLANNER_PARAMS, self._validate_change, self._apply_change)
         self.get_logger().info(f"planner ready: mode {p['mode']}, effort limits "
                                f'{self.limits.tolist()} N m, base frame {p["base_frame"]}')
@@ -238,8 +244,25 @@ class PlannerNode(Node):
         except (PlanningError, ValueError) as exc:
             self.diag.problem('goal_refused', f'goal_pose refused: {exc}')
             return
+        self.pending = (plan, time.monotonic() + CONTROLLER_WAIT)
+        self._send_pending()
+
+    def _send_pending(self) -> None:
+        """Publish the pending plan once a controller is matched: a trajectory published
+        before the controller's subscription matches is lost (volatile QoS)."""
+        if self.pending is None:
+            return
+        plan, deadline = self.pending
+        if self.traj_pub.get_subscription_count() == 0:
+            if time.monotonic() > deadline:
+                self.pending = None
+                self.diag.problem('goal_unsent', 'goal_pose dropped: no controller subscribed '
+                                  f'to arm_controller/joint_trajectory for {CONTROLLER_WAIT:g} s')
+            return
+        self.pending = None
         self.traj_pub.publish(trajectory_message(plan, self.joint_names))
-        self.path_pub.publish(path_message(plan, base, self.get_clock().now().to_msg()))
+        self.path_pub.publish(path_message(plan, self.params['base_frame'],
+                                           self.get_clock().now().to_msg()))
         self.plans += 1
         line = plan.summary(self.limits)
         self.get_logger().info(line)
