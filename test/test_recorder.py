@@ -26,6 +26,12 @@ def recorder_status(diags: list) -> dict:
     return values
 
 
+def recorder_endpoints(ros) -> set[bytes]:
+    """GIDs of the recorder subscriptions on /joint_states the graph knows."""
+    return {bytes(i.endpoint_gid) for i in ros.node.get_subscriptions_info_by_topic(
+        '/joint_states') if i.node_name == 'recorder'}
+
+
 def state(i: int) -> JointState:
     msg = JointState(name=['joint1', 'joint2'], position=[0.001 * i, -0.5],
                      velocity=[1.0, float(i)], effort=[2.0, -3.0])
@@ -36,6 +42,9 @@ def state(i: int) -> JointState:
 def record(ros, launch, tmp_path: Path, n: int = N, **params):
     """Start a recorder, publish ``n`` joint states, wait until all are on disk."""
     out = tmp_path / 'bag'
+    # A recorder killed by an earlier test stays in the graph until its lease expires:
+    # wait for this recorder's own subscription, not just for any.
+    ghosts = recorder_endpoints(ros)
     proc = launch('recorder', params={'output': str(out), 'flush_period': 0.2, **params})
     diags = ros.collect(DiagnosticArray, '/diagnostics')
     # What a subscriber receives (CDR padding bytes differ from a local serialisation).
@@ -43,7 +52,8 @@ def record(ros, launch, tmp_path: Path, n: int = N, **params):
     ros._entities.append(ros.node.create_subscription(JointState, 'joint_states',
                                                       received.append, 1000, raw=True))
     pub = ros.publisher(JointState, 'joint_states', qos=1000)
-    ros.wait_for(lambda: pub.get_subscription_count() >= 2, 20,
+    ros.wait_for(lambda: recorder_endpoints(ros) - ghosts and
+                 pub.get_subscription_count() >= 2, 20,
                  'the recorder and the test to subscribe joint_states')
     for i in range(n):
         pub.publish(state(i))
