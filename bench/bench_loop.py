@@ -1,0 +1,639 @@
+"""Closed-loop benchmark over ROS: the ``simulator`` and ``controller`` node processes.
+
+Starts both nodes as processes (``arm_sim.launcher.NodeProcess``, the shipped
+``config/arm.yaml`` plus per-run overrides) on a private ROS domain with localhost-only
+discovery, with the controller's computed-torque law holding the arm (``update_on:
+joint_states``, so every state gets one command), and measures from the bench's own rclpy
+node:
+
+1. lockstep -- simulated seconds per wall second at 1 kHz and 250 Hz control, from the
+   simulator's own ``achieved_real_time_factor`` on /diagnostics (the bench subscribes
+   nothing else, so it adds no load to the loop);
+2. real time -- per control rate, the fraction of late cycles and the state-to-command
+   latency, from ``joint_states`` and ``effort_controller/commands`` as the bench receives
+   them (DDS reception and publication timestamps from the message info, all on one host
+   clock; commands name the state they answer in ``layout.dim[0].label``);
+3. executors (optional, ``--executors``) -- the same loops with the nodes' executor
+   replaced at start-up (no file is edited): ``events`` (rclpy.experimental.EventsExecutor
+   spun with ``spin_once(timeout_sec=0.1)`` loops), ``multi`` (MultiThreadedExecutor) and
+   ``spin_once`` (SingleThreadedExecutor, ``spin()`` replaced by a spin_once loop).
+
+Run ``python bench/bench_loop.py --help`` for the options; bench/README.md explains every
+figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import statistics
+import struct
+import sys
+import tempfile
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from unittest import mock
+
+DEFAULT_DOMAIN = 211
+LOCKSTEP_RATES = (1000.0, 250.0)
+REALTIME_RATES = (100.0, 250.0, 500.0, 1000.0)
+QUICK_REALTIME_RATES = (250.0, 1000.0)
+VARIANTS = ('stock', 'events', 'multi', 'spin_once')
+LATE_LIMIT = 0.01  # a real-time rate is "held" with fewer late cycles than this
+LOCKSTEP_TARGET = 1.0  # x real time at 1 kHz
+
+# Run a node with its executor replaced: python -c WRAPPER VARIANT MODULE [--ros-args ...].
+# run_node() looks SingleThreadedExecutor up in arm_sim.ros_common at call time.
+WRAPPER = '''
+import importlib, sys
+import rclpy
+from rclpy import executors
+from arm_sim import ros_common
+variant, module = sys.argv[1], sys.argv[2]
+del sys.argv[1:3]
+
+
+class Loop:
+    """The executor, with spin() as a spin_once(timeout_sec=0.1) loop."""
+
+    def __init__(self, inner):
+        self._inner = inner
+
+    def __getattr__(self, name):
+        return getattr(self._inner, name)
+
+    def spin(self):
+        while rclpy.ok():
+            self._inner.spin_once(timeout_sec=0.1)
+
+
+if variant == 'events':
+    from rclpy.experimental import EventsExecutor
+    ros_common.SingleThreadedExecutor = lambda: Loop(EventsExecutor())
+elif variant == 'multi':
+    ros_common.SingleThreadedExecutor = executors.MultiThreadedExecutor
+elif variant == 'spin_once':
+    ros_common.SingleThreadedExecutor = lambda: Loop(executors.SingleThreadedExecutor())
+sys.exit(importlib.import_module(module).main())
+'''
+
+
+def say(text: str) -> None:
+    print(f'[bench] {text}', flush=True)
+
+
+def pct(values: list[float], q: float) -> float:
+    """The q-quantile (0..1) of ``values`` by nearest rank; nan when empty."""
+    if not values:
+        return float('nan')
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, max(0, round(q * (len(ordered) - 1))))]
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of process ``pid`` (all its threads) from /proc."""
+    try:
+        fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    except OSError:
+        return float('nan')
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def machine_busy() -> tuple[float, float]:
+    """(busy, total) CPU seconds of the whole machine so far, from /proc/stat."""
+    fields = [int(x) for x in Path('/proc/stat').read_text().split('\n', 1)[0].split()[1:]]
+    idle = fields[3] + fields[4]  # idle + iowait
+    total = sum(fields[:8])
+    tick = os.sysconf('SC_CLK_TCK')
+    return (total - idle) / tick, total / tick
+
+
+# ---------------------------------------------------------------------- raw CDR decoding
+# Both messages arrive as raw CDR (little endian, 4-byte encapsulation header): decoding
+# only the few fields needed keeps the bench's own CPU use low.
+def state_stamp_ns(raw: bytes) -> int:
+    """header.stamp of a sensor_msgs/JointState in ns."""
+    sec, nsec = struct.unpack_from('<iI', raw, 4)
+    return sec * 1_000_000_000 + nsec
+
+
+def command_answers_ns(raw: bytes) -> int | None:
+    """The state stamp [ns] named by a command's layout.dim[0].label, or None."""
+    from arm_dynamics.simulation import parse_answer_tag
+
+    (n_dims,) = struct.unpack_from('<I', raw, 4)
+    if n_dims == 0:
+        return None
+    (length,) = struct.unpack_from('<I', raw, 8)
+    return parse_answer_tag(raw[12:12 + length - 1].decode('ascii', 'replace'))
+
+
+# ---------------------------------------------------------------------- processes
+@dataclass
+class Loop:
+    """A simulator + controller pair on the bench's domain."""
+
+    mode: str
+    rate: float
+    variant: str
+    domain: int
+    log_dir: Path
+    procs: list = field(default_factory=list)
+    bad_exits: list = field(default_factory=list)
+
+    def start(self) -> None:
+        from arm_sim import launcher
+
+        sim_params = {'timing_mode': self.mode, 'publish_rate': self.rate,
+                      'physics_step': 0.001}
+        ctl_params = {'law': 'computed_torque', 'update_on': 'joint_states'}
+        tag = f'{self.mode}-{self.rate:g}-{self.variant}'
+        with self._executable(launcher):
+            for name, params in (('simulator', sim_params), ('controller', ctl_params)):
+                self.procs.append(launcher.NodeProcess(
+                    name, params_file=launcher.config_file(), params=params,
+                    domain_id=self.domain, log_path=self.log_dir / f'{tag}-{name}.log'))
+
+    @contextmanager
+    def _executable(self, launcher):
+        if self.variant == 'stock':
+            yield
+            return
+        with mock.patch.object(launcher, 'executable', lambda name: [
+                sys.executable, '-c', WRAPPER, self.variant, launcher.MODULES[name]]):
+            yield
+
+    def alive(self) -> bool:
+        return all(p.alive() for p in self.procs)
+
+    def cpu(self) -> list[float]:
+        return [cpu_seconds(p.proc.pid) for p in self.procs]
+
+    def stop(self) -> None:
+        """SIGINT both (then SIGKILL after 5 s); abnormal exits land in ``bad_exits``."""
+        for p in reversed(self.procs):
+            code = p.stop(signal.SIGINT, timeout=5.0)
+            if code not in (0, -signal.SIGINT):
+                last = (p.output().strip().splitlines() or [''])[-1][:200]
+                self.bad_exits.append(f'{p.name} exited {code} ({last})')
+        self.procs.clear()
+
+    def logs(self) -> str:
+        return '\n'.join(f'--- {p.name} log:\n{p.output()[-1500:]}' for p in self.procs)
+
+
+class Observer:
+    """The bench's own rclpy side.
+
+    /diagnostics goes through an EventsExecutor (cheap per message). States and commands
+    (``watch_loop``) are subscribed raw on a second node that no executor spins: ``drain``
+    takes them straight from the DDS history with their message info (publication and
+    reception timestamps), so the bench's own scheduling delays do not enter the figures
+    and its CPU use stays low. (EventsExecutor cannot deliver message info here: callbacks
+    taking it fail with "SystemError: null argument to internal routine".)
+    """
+
+    def __init__(self, domain: int) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        self.rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = rclpy.create_node('bench_loop', context=self.context)
+        self.tap = rclpy.create_node('bench_loop_tap', context=self.context)
+        try:
+            from rclpy.experimental import EventsExecutor
+            self.executor = EventsExecutor(context=self.context)
+        except ImportError:
+            from rclpy.executors import SingleThreadedExecutor
+            self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.diag: list[tuple[float, dict]] = []
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 50)
+        self.states: list = []
+        self.commands: list = []
+        self._subs: list = []
+
+    def _on_diag(self, msg) -> None:
+        for status in msg.status:
+            if status.name == '/simulator':
+                values = {kv.key: kv.value for kv in status.values}
+                values['message'] = status.message
+                self.diag.append((time.monotonic(), values))
+
+    def watch_loop(self) -> None:
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Float64MultiArray
+
+        self.unwatch()
+        for msg_type, topic, sink in ((JointState, 'joint_states', self.states),
+                                      (Float64MultiArray, 'effort_controller/commands',
+                                       self.commands)):
+            sub = self.tap.create_subscription(msg_type, topic, lambda _msg: None, 10000,
+                                               raw=True)
+            self._subs.append((sub, sink))
+
+    def drain(self) -> None:
+        for sub, sink in self._subs:
+            with sub.handle:
+                while True:
+                    taken = sub.handle.take_message(sub.msg_type, True)
+                    if taken is None:
+                        break
+                    raw, info = taken
+                    sink.append((raw, info['source_timestamp'], info['received_timestamp']))
+
+    def unwatch(self) -> None:
+        for sub, _sink in self._subs:
+            self.tap.destroy_subscription(sub)
+        self._subs.clear()
+
+    def clear(self) -> None:
+        self.diag.clear()
+        self.states.clear()
+        self.commands.clear()
+
+    def spin_for(self, seconds: float, until=None) -> bool:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            if until is not None and until():
+                return True
+            self.executor.spin_once(timeout_sec=0.01)
+            self.drain()
+        return until() if until is not None else True
+
+    def shutdown(self) -> None:
+        self.unwatch()
+        self.tap.destroy_node()
+        self.node.destroy_node()
+        self.rclpy.try_shutdown(context=self.context)
+
+
+# ---------------------------------------------------------------------- measurements
+@dataclass
+class Result:
+    mode: str
+    rate: float
+    variant: str
+    ok: bool = True
+    error: str = ''
+    rtf: float = float('nan')  # lockstep: mean achieved_real_time_factor
+    rtf_min: float = float('nan')
+    rtf_max: float = float('nan')
+    windows: int = 0
+    states: int = 0
+    late: int = 0  # answered after the next state was due, or never
+    skipped: int = 0  # control periods with no state at all (simulator overran)
+    lat_p50: float = float('nan')  # ms, observer: command received - state received
+    lat_p99: float = float('nan')
+    react_p50: float = float('nan')  # ms, command published - state published
+    react_p99: float = float('nan')
+    tick_p99: float = float('nan')  # ms, interval between state publications
+    overruns: str = ''
+    runs: int = 1
+    samples: dict = field(default_factory=dict)  # raw per-run values, for merging repeats
+    cpu: list = field(default_factory=list)  # % of one core: simulator, controller, bench
+    other: float = float('nan')  # % of one core used by everything else on the machine
+
+    @property
+    def periods(self) -> int:
+        return self.states + self.skipped
+
+    @property
+    def late_fraction(self) -> float:
+        return (self.late + self.skipped) / self.periods if self.periods else float('nan')
+
+
+def sim_values(obs: Observer, since: float) -> list[dict]:
+    return [v for t, v in obs.diag if t >= since]
+
+
+def run_one(obs: Observer, loop: Loop, duration: float, warmup: float) -> Result:
+    res = Result(loop.mode, loop.rate, loop.variant)
+    obs.clear()
+    if loop.mode == 'real_time':
+        obs.watch_loop()
+    loop.start()
+    try:
+        if loop.mode == 'lockstep':
+            started = obs.spin_for(20.0, lambda: any(
+                int(v.get('commands_received', 0)) > 0 for _, v in obs.diag))
+        else:
+            started = obs.spin_for(20.0, lambda: len(obs.commands) > 10)
+        if not started or not loop.alive():
+            res.ok, res.error = False, 'loop did not start'
+            say(f'{loop.mode} {loop.rate:g} Hz [{loop.variant}]: loop did not start\n'
+                + loop.logs())
+            return res
+        obs.spin_for(warmup)
+        t0, wall0, cpu0, own0 = time.monotonic(), time.time_ns(), loop.cpu(), time.process_time()
+        busy0 = machine_busy()
+        obs.spin_for(duration)
+        t1, wall1, cpu1, own1 = time.monotonic(), time.time_ns(), loop.cpu(), time.process_time()
+        busy1 = machine_busy()
+        obs.spin_for(0.2)  # commands answering the last states
+        res.cpu = [100 * (b - a) / (t1 - t0) for a, b in zip(cpu0, cpu1)]
+        res.cpu.append(100 * (own1 - own0) / (t1 - t0))
+        # /proc/stat counts every CPU: busy seconds per wall second = cores in use
+        res.other = 100 * (busy1[0] - busy0[0]) / (t1 - t0) - sum(res.cpu)
+        if not loop.alive():
+            res.ok, res.error = False, 'a node died'
+            say(f'{loop.mode} {loop.rate:g} Hz [{loop.variant}]: a node died\n' + loop.logs())
+            return res
+        values = sim_values(obs, t0)
+        last = values[-1] if values else {}
+        res.overruns = last.get('overrun_count', '0')
+        if loop.mode == 'lockstep':
+            lockstep_figures(res, values)
+        else:
+            realtime_figures(res, obs, wall0, wall1)
+    finally:
+        obs.unwatch()
+        loop.stop()
+    return res
+
+
+def lockstep_figures(res: Result, values: list[dict]) -> None:
+    """Mean of the simulator's 1 s achieved_real_time_factor windows (each distinct window
+    once: its summary may be published twice)."""
+    windows, seen = [], set()
+    for v in values:
+        key = v.get('sim_time')
+        if key is None or key in seen or 'achieved_real_time_factor' not in v:
+            continue
+        seen.add(key)
+        windows.append(float(v['achieved_real_time_factor']))
+    windows = windows[1:]  # the first may straddle the warm-up
+    if not windows:
+        res.ok, res.error = False, 'no diagnostics windows'
+        return
+    res.samples = {'rtf': [statistics.fmean(windows)]}
+    res.windows = len(windows)
+    res.rtf = statistics.fmean(windows)
+    res.rtf_min, res.rtf_max = min(windows), max(windows)
+
+
+def realtime_figures(res: Result, obs: Observer, wall0: int, wall1: int) -> None:
+    period_ns = round(1e9 / res.rate)
+    states = [(state_stamp_ns(raw), src, rcv) for raw, src, rcv in obs.states
+              if wall0 <= src < wall1]
+    answers: dict[int, tuple[int, int]] = {}
+    for raw, src, rcv in obs.commands:
+        stamp = command_answers_ns(raw)
+        if stamp is not None and stamp not in answers:
+            answers[stamp] = (src, rcv)
+    if len(states) < 2:
+        res.ok, res.error = False, 'too few states'
+        return
+    latency, react, ticks = [], [], []
+    prev = None
+    for stamp, src, rcv in states:
+        if prev is not None:
+            gap = stamp - prev[0]
+            res.skipped += max(0, round(gap / period_ns) - 1)
+            ticks.append((src - prev[1]) * 1e-6)
+        prev = (stamp, src)
+        res.states += 1
+        answer = answers.get(stamp)
+        if answer is None:
+            res.late += 1
+            continue
+        c_src, c_rcv = answer
+        latency.append((c_rcv - rcv) * 1e-6)
+        react.append((c_src - src) * 1e-6)
+        if c_rcv > src + period_ns:
+            res.late += 1
+    res.samples = {'latency': latency, 'react': react, 'ticks': ticks,
+                   'late%': [100 * res.late_fraction]}
+    res.lat_p50, res.lat_p99 = pct(latency, 0.5), pct(latency, 0.99)
+    res.react_p50, res.react_p99 = pct(react, 0.5), pct(react, 0.99)
+    res.tick_p99 = pct(ticks, 0.99)
+
+
+def merge(results: list[Result]) -> Result:
+    """One result from repeats of the same configuration: lockstep speed is the median of
+    the repeats (min-max across them), real-time counts and latency samples are pooled."""
+    first = results[0]
+    good = [r for r in results if r.ok]
+    if len(results) == 1 or not good:
+        return first
+    out = Result(first.mode, first.rate, first.variant, runs=len(good))
+    out.cpu = [statistics.median(c) for c in zip(*(r.cpu for r in good))]
+    out.other = statistics.median(r.other for r in good)
+    if first.mode == 'lockstep':
+        rtfs = [x for r in good for x in r.samples['rtf']]
+        out.rtf, out.rtf_min, out.rtf_max = statistics.median(rtfs), min(rtfs), max(rtfs)
+        out.windows = sum(r.windows for r in good)
+        out.samples = {'rtf': rtfs}
+        return out
+    pooled = {k: [x for r in good for x in r.samples[k]]
+              for k in ('latency', 'react', 'ticks', 'late%')}
+    out.states = sum(r.states for r in good)
+    out.late = sum(r.late for r in good)
+    out.skipped = sum(r.skipped for r in good)
+    out.lat_p50, out.lat_p99 = pct(pooled['latency'], 0.5), pct(pooled['latency'], 0.99)
+    out.react_p50, out.react_p99 = pct(pooled['react'], 0.5), pct(pooled['react'], 0.99)
+    out.tick_p99 = pct(pooled['ticks'], 0.99)
+    out.samples = pooled
+    return out
+
+
+def describe(res: Result) -> str:
+    head = f'{res.mode} {res.rate:g} Hz [{res.variant}]'
+    cpu = '/'.join(f'{c:.0f}' for c in res.cpu)
+    if not res.ok:
+        return f'{head}: FAILED ({res.error})'
+    if res.mode == 'lockstep':
+        return (f'{head}: {res.rtf:.2f} sim-s per wall-s = {res.rtf:.2f}x real time '
+                f'({res.rtf * res.rate:.0f} control steps/s, {1e6 / (res.rtf * res.rate):.0f}'
+                f' us per state->command->state round; {res.windows} windows '
+                f'{res.rtf_min:.2f}-{res.rtf_max:.2f}x; CPU % sim/ctl/bench {cpu})')
+    return (f'{head}: {100 * res.late_fraction:.2f}% late cycles ({res.late} late or '
+            f'unanswered of {res.states} states + {res.skipped} skipped periods), latency '
+            f'p50 {res.lat_p50:.2f} ms p99 {res.lat_p99:.2f} ms, publish-to-publish p50 '
+            f'{res.react_p50:.2f} ms p99 {res.react_p99:.2f} ms (period '
+            f'{1e3 / res.rate:.2f} ms); tick p99 {res.tick_p99:.2f} ms; CPU % sim/ctl/bench '
+            f'{cpu}, other processes {res.other:.0f}; simulator overrun reports {res.overruns}')
+
+
+# ---------------------------------------------------------------------- report
+def table(results: list[Result], repeats: int = 1) -> str:
+    def num(x: float, fmt: str) -> str:
+        return '-' if x != x else format(x, fmt)
+
+    lines = ['', '== Lockstep: simulated seconds per wall second (target >= 1x at 1 kHz) ==',
+             f"{'control':>8} {'executor':>9} {'x real time':>11} {'min-max':>11} "
+             f"{'steps/s':>8} {'us/round':>8} {'CPU% sim/ctl':>13} {'other':>5}"]
+    for r in results:
+        if r.mode != 'lockstep':
+            continue
+        if not r.ok:
+            lines.append(f'{r.rate:>6g}Hz {r.variant:>9} FAILED: {r.error}')
+            continue
+        lines.append(f'{r.rate:>6g}Hz {r.variant:>9} {r.rtf:>10.2f}x '
+                     f'{r.rtf_min:>5.2f}-{r.rtf_max:<5.2f} {r.rtf * r.rate:>8.0f} '
+                     f'{1e6 / (r.rtf * r.rate):>8.0f} {r.cpu[0]:>6.0f}/{r.cpu[1]:<6.0f} '
+                     f'{r.other:>5.0f}')
+    lines += ['', '== Real time: late cycles and state->command latency '
+              '(target < 1% late at 250 Hz) ==',
+              f"{'control':>8} {'executor':>9} {'late %':>7} {'late':>5} {'skip':>5} "
+              f"{'states':>6} {'lat p50':>7} {'lat p99':>7} {'pub p50':>7} {'pub p99':>7} "
+              f"{'tick p99':>8} "
+              f"{'period':>6} {'CPU% sim/ctl/bench':>18} {'other':>5}"]
+    for r in results:
+        if r.mode != 'real_time':
+            continue
+        if not r.ok:
+            lines.append(f'{r.rate:>6g}Hz {r.variant:>9} FAILED: {r.error}')
+            continue
+        cpu = '/'.join(f'{c:.0f}' for c in r.cpu)
+        lines.append(f'{r.rate:>6g}Hz {r.variant:>9} {100 * r.late_fraction:>6.2f}% '
+                     f'{r.late:>5} {r.skipped:>5} {r.states:>6} {num(r.lat_p50, "7.2f")} '
+                     f'{num(r.lat_p99, "7.2f")} {num(r.react_p50, "7.2f")} '
+                     f'{num(r.react_p99, "7.2f")} '
+                     f'{num(r.tick_p99, "8.2f")} {1e3 / r.rate:>6.2f} {cpu:>18} {r.other:>5.0f}')
+    lines.append('(ms; lat = command received - state received, as the bench receives them; '
+                 'pub = command published - state\n published, from the publishers\' '
+                 'timestamps; tick = interval between states; CPU in % of one core, '
+                 '"other" =\n every other process on the machine)')
+    lines += ['', '== Summary ==' + (f' ({repeats} interleaved repeats per configuration: '
+                                     'lockstep = median, real time = pooled)'
+                                     if repeats > 1 else '')]
+    for variant in dict.fromkeys(r.variant for r in results):
+        mine = [r for r in results if r.variant == variant and r.ok]
+        lock = [r for r in mine if r.mode == 'lockstep' and r.rate == 1000.0]
+        for r in lock:
+            verdict = 'meets' if r.rtf >= LOCKSTEP_TARGET else 'MISSES'
+            lines.append(f'[{variant}] lockstep 1 kHz: {r.rtf:.2f} sim-s per wall-s = '
+                         f'{r.rtf:.2f}x real time ({verdict} the >= 1x target)')
+        rt = sorted((r for r in mine if r.mode == 'real_time'), key=lambda r: r.rate)
+        if rt:
+            held = [r for r in rt if r.late_fraction < LATE_LIMIT]
+            best = (f'{held[-1].rate:g} Hz ({100 * held[-1].late_fraction:.2f}% late)'
+                    if held else 'none of the rates tried')
+            lines.append(f'[{variant}] real time: highest rate with < 1% late cycles: '
+                         f'{best}; tried ' + ', '.join(
+                             f'{r.rate:g} Hz {100 * r.late_fraction:.1f}%' + (
+                                 ' (runs ' + '/'.join(f'{x:.1f}' for x in r.samples['late%'])
+                                 + ')' if r.runs > 1 else '') for r in rt))
+            at250 = [r for r in rt if r.rate == 250.0]
+            for r in at250:
+                verdict = 'meets' if r.late_fraction < LATE_LIMIT else 'MISSES'
+                lines.append(f'[{variant}] real time 250 Hz: {100 * r.late_fraction:.2f}% '
+                             f'late ({verdict} the < 1% target)')
+    return '\n'.join(lines)
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(
+        prog='bench_loop.py',
+        description='Closed-loop benchmark over ROS between the simulator and controller '
+                    'node processes: lockstep speed and real-time late cycles/latency.',
+        epilog='Every process runs on ROS_DOMAIN_ID=--domain with '
+               'ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST and is stopped at the end.')
+    ap.add_argument('--quick', action='store_true',
+                    help='smoke run (~35 s): 4 s windows, real time at 250 and 1000 Hz only, '
+                         'stock executor only')
+    ap.add_argument('--duration', type=float, default=None,
+                    help='measurement window per run in wall seconds (default 10, quick 4)')
+    ap.add_argument('--warmup', type=float, default=None,
+                    help='wall seconds after the loop starts before measuring '
+                         '(default 1.5, quick 1)')
+    ap.add_argument('--rates', type=str, default=None,
+                    help='real-time control rates in Hz, comma separated '
+                         '(default 100,250,500,1000; quick 250,1000)')
+    ap.add_argument('--lockstep-rates', type=str, default='1000,250',
+                    help='lockstep control rates in Hz (default 1000,250)')
+    ap.add_argument('--executors', type=str, default=None,
+                    help='node executor variants, comma separated, from '
+                         f'{",".join(VARIANTS)}; stock = the nodes as shipped (default '
+                         'stock,events; quick: stock); '
+                         'non-stock variants run lockstep at the highest lockstep rate '
+                         'and real time at the two highest rates')
+    ap.add_argument('--repeats', type=int, default=1,
+                    help='run every configuration this many times, interleaved; the table '
+                         'gives the median lockstep speed and pooled real-time figures')
+    ap.add_argument('--domain', type=int, default=DEFAULT_DOMAIN,
+                    help=f'ROS_DOMAIN_ID for every process (default {DEFAULT_DOMAIN})')
+    ap.add_argument('--log-dir', type=Path, default=None,
+                    help='where node logs go (default: a temporary directory)')
+    args = ap.parse_args(argv)
+    args.duration = args.duration or (4.0 if args.quick else 10.0)
+    args.warmup = args.warmup if args.warmup is not None else (1.0 if args.quick else 1.5)
+    rates = args.rates or ','.join(f'{r:g}' for r in (
+        QUICK_REALTIME_RATES if args.quick else REALTIME_RATES))
+    args.rt_rates = [float(r) for r in rates.split(',') if r]
+    args.ls_rates = [float(r) for r in args.lockstep_rates.split(',') if r]
+    executors = args.executors or ('stock' if args.quick else 'stock,events')
+    args.variants = [v for v in executors.split(',') if v]
+    bad = [v for v in args.variants if v not in VARIANTS]
+    if bad:
+        ap.error(f'unknown executor variant(s) {bad}; choose from {VARIANTS}')
+    return args
+
+
+def plan(args: argparse.Namespace) -> list[tuple[str, float, str]]:
+    """Every configuration once per repeat; variants interleaved within a configuration so
+    that background load hits them alike. Non-stock variants run only lockstep at the
+    highest lockstep rate and real time at the two highest real-time rates."""
+    configs = [('lockstep', r) for r in args.ls_rates] + [('real_time', r)
+                                                          for r in args.rt_rates]
+    compare = {('lockstep', max(args.ls_rates, default=0.0))}
+    compare |= {('real_time', r) for r in sorted(args.rt_rates)[-2:]}
+    runs = []
+    for _ in range(args.repeats):
+        for config in configs:
+            runs += [(*config, v) for v in args.variants if v == 'stock' or config in compare]
+    return runs
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    os.environ['ROS_DOMAIN_ID'] = str(args.domain)
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    runs = plan(args)
+    per_run = args.duration + args.warmup + 3.0
+    say(f'{len(runs)} runs of {args.duration:g} s (+{args.warmup:g} s warm-up, ~3 s start/'
+        f'stop): ~{len(runs) * per_run:.0f} s; domain {args.domain}, '
+        f'{os.cpu_count()} CPUs, load average '
+        + ' '.join(f'{x:.2f}' for x in os.getloadavg()))
+    log_ctx = (tempfile.TemporaryDirectory(prefix='bench_loop-') if args.log_dir is None
+               else None)
+    log_dir = Path(log_ctx.name) if log_ctx else args.log_dir
+    log_dir.mkdir(parents=True, exist_ok=True)
+    obs = Observer(args.domain)
+    results: list[Result] = []
+    begun = time.monotonic()
+    try:
+        for i, (mode, rate, variant) in enumerate(runs, 1):
+            loop = Loop(mode, rate, variant, args.domain, log_dir)
+            try:
+                res = run_one(obs, loop, args.duration, args.warmup)
+            finally:
+                loop.stop()
+            results.append(res)
+            say(f'({i}/{len(runs)}, {time.monotonic() - begun:.0f} s) {describe(res)}')
+            if loop.bad_exits:
+                say('  on SIGINT: ' + '; '.join(loop.bad_exits)
+                    + ('' if log_ctx else f' (logs in {log_dir})'))
+    except KeyboardInterrupt:
+        say('interrupted: partial results')
+    finally:
+        obs.shutdown()
+        if log_ctx:
+            log_ctx.cleanup()
+    say(f'done in {time.monotonic() - begun:.0f} s; load average now '
+        + ' '.join(f'{x:.2f}' for x in os.getloadavg()))
+    groups: dict[tuple, list[Result]] = {}
+    for r in results:
+        groups.setdefault((r.mode, r.rate, r.variant), []).append(r)
+    print(table([merge(g) for g in groups.values()], args.repeats))
+    return 0 if results and all(r.ok for r in results) else 1
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
