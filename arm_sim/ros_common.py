@@ -175,6 +175,9 @@ def print_help(prog: str, summary: str, specs: Iterable[ParamSpec]) -> None:
         print(f'  {s.name} (default {s.default!r})\n      {s.doc()}')
 
 
+#: The executor every node spins (bench/bench_loop.py swaps it to compare).
+EXECUTOR: Callable[[], object] = EventsExecutor
+
 Spin = Callable[[EventsExecutor, Node, Callable[[], bool]], None]
 
 
@@ -188,7 +191,7 @@ def spin_until_stopped(executor: EventsExecutor, _node: Node,
 def run_node(factory: Callable[[], Node], *, prog: str, summary: str,
              specs: Iterable[ParamSpec], args: list[str] | None = None,
              spin: Spin | None = None,
-             executor_type: Callable[[], object] = EventsExecutor) -> int:
+             executor_type: Callable[[], object] | None = None) -> int:
     """Jazzy-style main: init, spin until Ctrl-C / SIGTERM / shutdown, destroy, shutdown.
 
     The executor is rclpy's EventsExecutor, spun with ``spin_once``: measured in
@@ -221,7 +224,7 @@ def run_node(factory: Callable[[], Node], *, prog: str, summary: str,
     code = 0
     try:
         node = factory()
-        executor = executor_type()
+        executor = (executor_type or EXECUTOR)()
         executor.add_node(node)
         (spin or spin_until_stopped)(executor, node, running)
     except ConfigError as exc:

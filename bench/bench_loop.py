@@ -14,9 +14,10 @@ node:
    them (DDS reception and publication timestamps from the message info, all on one host
    clock; commands name the state they answer in ``layout.dim[0].label``);
 3. executors (optional, ``--executors``) -- the same loops with the nodes' executor
-   replaced at start-up (no file is edited): ``events`` (rclpy.experimental.EventsExecutor
-   spun with ``spin_once(timeout_sec=0.1)`` loops), ``multi`` (MultiThreadedExecutor) and
-   ``spin_once`` (SingleThreadedExecutor, ``spin()`` replaced by a spin_once loop).
+   replaced at start-up through ``arm_sim.ros_common.EXECUTOR`` (no file is edited):
+   ``stock`` is what ships (rclpy.experimental.EventsExecutor in ``spin_once`` loops),
+   ``single`` is SingleThreadedExecutor and ``multi`` MultiThreadedExecutor, both in the
+   same ``spin_once`` loops.
 
 Run ``python bench/bench_loop.py --help`` for the options; bench/README.md explains every
 figure.
@@ -41,7 +42,7 @@ DEFAULT_DOMAIN = 211
 LOCKSTEP_RATES = (1000.0, 250.0)
 REALTIME_RATES = (100.0, 250.0, 500.0, 1000.0)
 QUICK_REALTIME_RATES = (250.0, 1000.0)
-VARIANTS = ('stock', 'events', 'multi', 'spin_once')
+VARIANTS = ('stock', 'single', 'multi')  # stock = as shipped: EventsExecutor
 LATE_LIMIT = 0.01  # a real-time rate is "held" with fewer late cycles than this
 LOCKSTEP_TARGET = 1.0  # x real time at 1 kHz
 
@@ -49,34 +50,14 @@ LOCKSTEP_TARGET = 1.0  # x real time at 1 kHz
 # run_node() looks SingleThreadedExecutor up in arm_sim.ros_common at call time.
 WRAPPER = '''
 import importlib, sys
-import rclpy
 from rclpy import executors
 from arm_sim import ros_common
 variant, module = sys.argv[1], sys.argv[2]
 del sys.argv[1:3]
-
-
-class Loop:
-    """The executor, with spin() as a spin_once(timeout_sec=0.1) loop."""
-
-    def __init__(self, inner):
-        self._inner = inner
-
-    def __getattr__(self, name):
-        return getattr(self._inner, name)
-
-    def spin(self):
-        while rclpy.ok():
-            self._inner.spin_once(timeout_sec=0.1)
-
-
-if variant == 'events':
-    from rclpy.experimental import EventsExecutor
-    ros_common.SingleThreadedExecutor = lambda: Loop(EventsExecutor())
+if variant == 'single':
+    ros_common.EXECUTOR = executors.SingleThreadedExecutor
 elif variant == 'multi':
-    ros_common.SingleThreadedExecutor = executors.MultiThreadedExecutor
-elif variant == 'spin_once':
-    ros_common.SingleThreadedExecutor = lambda: Loop(executors.SingleThreadedExecutor())
+    ros_common.EXECUTOR = executors.MultiThreadedExecutor
 sys.exit(importlib.import_module(module).main())
 '''
 
@@ -551,7 +532,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument('--executors', type=str, default=None,
                     help='node executor variants, comma separated, from '
                          f'{",".join(VARIANTS)}; stock = the nodes as shipped (default '
-                         'stock,events; quick: stock); '
+                         'stock,single; quick: stock); '
                          'non-stock variants run lockstep at the highest lockstep rate '
                          'and real time at the two highest rates')
     ap.add_argument('--repeats', type=int, default=1,
@@ -568,7 +549,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         QUICK_REALTIME_RATES if args.quick else REALTIME_RATES))
     args.rt_rates = [float(r) for r in rates.split(',') if r]
     args.ls_rates = [float(r) for r in args.lockstep_rates.split(',') if r]
-    executors = args.executors or ('stock' if args.quick else 'stock,events')
+    executors = args.executors or ('stock' if args.quick else 'stock,single')
     args.variants = [v for v in executors.split(',') if v]
     bad = [v for v in args.variants if v not in VARIANTS]
     if bad:
