@@ -41,7 +41,12 @@ case "$cmd" in
     echo "[test] ruff"
     "$VENV/bin/ruff" check .
     echo "[test] pytest"
-    exec "$VENV/bin/python" -m pytest "$@" ;;
+    status=0
+    "$VENV/bin/python" -m pytest "$@" || status=$?
+    # Fast DDS leaves shared-memory files of processes that died (SIGKILL tests, and the
+    # test process's own port segments once it exits); remove them.
+    "$VENV/bin/fastdds" shm clean > /dev/null 2>&1 || true
+    exit $status ;;
   bench)
     setup
     if ! "$VENV/bin/python" -c 'import pinocchio, mujoco' 2>/dev/null; then

@@ -117,6 +117,7 @@ class RecorderNode(Node):
         self.channels: dict[str, int] = {}
         self.skipped: set[str] = set()
         self.received = 0
+        self.per_topic: dict[str, int] = {}  # messages received per topic
         self.dropped = 0
         self.failed: str | None = None
         self.stopped = False
@@ -181,15 +182,17 @@ class RecorderNode(Node):
             kwargs['event_callbacks'] = SubscriptionEventCallbacks(message_lost=self._lost)
         except ImportError:
             pass
+        self.per_topic[name] = 0
         self.subs[name] = self.create_subscription(
-            cls, name, lambda data, ch=ch: self._on_message(ch, data), qos, raw=True,
-            **kwargs)
+            cls, name, lambda data, ch=ch, t=name: self._on_message(ch, data, t), qos,
+            raw=True, **kwargs)
         self.get_logger().info(f'recording {name} [{type_name}]')
 
     # ------------------------------------------------------------------ data
-    def _on_message(self, channel: int, data: bytes) -> None:
+    def _on_message(self, channel: int, data: bytes, topic: str) -> None:
         now = time.time_ns()
         self.received += 1
+        self.per_topic[topic] += 1
         if self.stopped:
             self.dropped += 1
             return
@@ -216,7 +219,8 @@ class RecorderNode(Node):
         self.diag.set('OK' if not self.dropped else 'WARN',
                       f'recording {len(self.subs)} topics', received=self.received,
                       written=written, buffered=self.writer.pending, dropped=self.dropped,
-                      topics=sorted(self.subs))
+                      topics=sorted(self.subs),
+                      **{f'received {t}': n for t, n in self.per_topic.items()})
 
     def _fail(self, exc: Exception) -> None:
         if self.stopped:

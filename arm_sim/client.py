@@ -42,12 +42,15 @@ class SuiteClient:
                                       context=self.context)
         self.states: list[JointState] = []
         self.trajectories: list[JointTrajectory] = []
+        self.reference_time = -math.inf  # stamp of the controller's latest answer [s]
         self.diagnostics: list[tuple[str, str, str]] = []  # (node, level, message)
+        self.diagnostic_values: list[tuple[str, dict[str, str]]] = []  # (node, key: value)
         n = self.node
         n.create_subscription(JointState, 'joint_states', self._keep_state, 100)
         n.create_subscription(JointTrajectory, 'arm_controller/joint_trajectory',
                               self.trajectories.append, 10)
         n.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 100)
+        n.create_subscription(JointState, 'arm_controller/reference', self._on_reference, 100)
         self.goal_pub = n.create_publisher(PoseStamped, 'goal_pose', 10)
         self._clients: dict[str, object] = {}
 
@@ -56,10 +59,15 @@ class SuiteClient:
         if len(self.states) > 20000:
             del self.states[:10000]
 
+    def _on_reference(self, msg: JointState) -> None:
+        self.reference_time = max(self.reference_time, stamp_of(msg))
+
     def _on_diag(self, msg: DiagnosticArray) -> None:
         for s in msg.status:
             if s.name.startswith(self.ns + '/') and s.name.count('/') == self.ns.count('/') + 1:
-                self.diagnostics.append((s.name.rsplit('/', 1)[1], s.level, s.message))
+                node = s.name.rsplit('/', 1)[1]
+                self.diagnostics.append((node, s.level, s.message))
+                self.diagnostic_values.append((node, {kv.key: kv.value for kv in s.values}))
 
     def node_name(self, name: str) -> str:
         return f'{self.ns}/{name}'

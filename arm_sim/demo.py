@@ -112,8 +112,7 @@ class Demo:
         self.echo(f'starting simulator, controller, planner and recorder (ROS domain '
                   f'{self.domain}, localhost only; logs in {self.out / "logs"})')
         self._start('recorder', output=str(bag))
-        self._start('simulator', timing_mode='lockstep', pause_at=0.0)
-        self._start('controller')
+        self._start('simulator', timing_mode='lockstep', pause_at=0.5)
         self._start('planner')
         client = SuiteClient(self.domain)
         try:
@@ -129,11 +128,15 @@ class Demo:
     def _drive(self, c: SuiteClient) -> None:
         wait = 30.0
         needed = [('recorder', t) for t in DEFAULT_TOPICS] + [
-            ('controller', 'joint_states'), ('controller', 'arm_controller/joint_trajectory'),
             ('planner', 'joint_states'), ('planner', 'goal_pose')]
         for node, topic in needed:
             c.spin_until(lambda n=node, t=topic: c.subscribed(t, n), wait,
                          f'the {node} to subscribe {topic}', self._alive)
+        # The simulator re-sends its first state until a command comes: start the controller
+        # (and so the loop) only once the recorder has that state, so the bag has every one.
+        c.spin_until(lambda: self._recorded(c, 'joint_states'), wait,
+                     'the recorder to record a joint state', self._alive)
+        self._start('controller')
         t_next = 0.5
         self.echo(f'the arm starts at rest at q = {self.q0.tolist()} rad, tip Ps = '
                   f'({self.tasks[1].goal[0]:.3f}, {self.tasks[1].goal[1]:.3f}) m, held by '
@@ -168,9 +171,12 @@ class Demo:
                       'from the goal after settling')
 
     def _run_to(self, c: SuiteClient, t: float) -> None:
+        """Run to ``t`` and wait until the controller has answered the state at ``t``: a
+        parameter or trajectory change before that answer would make the run depend on
+        timing."""
         c.set_params('simulator', pause_at=t)
-        c.spin_until(lambda: c.sim_time >= t - 1e-9, 60.0, f'simulated time {t:.2f} s',
-                     self._alive)
+        c.spin_until(lambda: c.sim_time >= t - 1e-9 and c.reference_time >= t - 1e-9, 60.0,
+                     f'simulated time {t:.2f} s', self._alive)
 
     @staticmethod
     def _refusal(c: SuiteClient) -> str | None:
@@ -178,6 +184,12 @@ class Demo:
             if node == 'planner' and message.startswith('goal_'):
                 return message
         return None
+
+    @staticmethod
+    def _recorded(c: SuiteClient, topic: str) -> bool:
+        key = f'received /{topic}'
+        return any(node == 'recorder' and int(values.get(key, 0)) > 0
+                   for node, values in c.diagnostic_values)
 
     @staticmethod
     def _accepted(c: SuiteClient) -> int:

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -19,6 +21,74 @@ import pytest
 DOMAIN_ID = int(os.environ.get('ARM_SIM_TEST_DOMAIN', 1 + os.getpid() % 231))
 os.environ['ROS_DOMAIN_ID'] = str(DOMAIN_ID)
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+
+
+NODE_EXES = ('simulator', 'controller', 'planner', 'recorder')
+
+
+def node_processes() -> set[int]:
+    """PIDs of running arm_sim node processes (console scripts or python -m modules)."""
+    pids = set()
+    for proc in Path('/proc').iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            argv = (proc / 'cmdline').read_bytes().split(b'\0')
+        except OSError:
+            continue
+        words = [a.decode(errors='replace') for a in argv if a]
+        if any(Path(w).name in NODE_EXES or w.endswith('_node') for w in words[:3]):
+            pids.add(int(proc.name))
+    return pids
+
+
+def shm_files() -> set[str]:
+    return {p.name for p in Path('/dev/shm').glob('fastrtps_*')}
+
+
+def own_shm_files() -> set[str]:
+    """Fast DDS files this (pytest) process still maps: its port segments live until it
+    exits, then ``run.sh test`` cleans them."""
+    maps = Path('/proc/self/maps').read_text()
+    return {Path(line.split()[-1]).name for line in maps.splitlines()
+            if '/dev/shm/fastrtps_' in line}
+
+
+def shm_holders() -> set[str]:
+    """Fast DDS files some live process has open or mapped."""
+    held = set()
+    for proc in Path('/proc').iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            held |= {Path(line.split()[-1]).name for line in
+                     (proc / 'maps').read_text().splitlines() if '/dev/shm/fastrtps_' in line}
+            held |= {Path(os.readlink(fd)).name for fd in (proc / 'fd').iterdir()
+                     if '/dev/shm/fastrtps_' in os.readlink(fd)}
+        except OSError:
+            continue
+    return held
+
+
+@pytest.fixture(scope='session', autouse=True)
+def leaves_nothing_behind():
+    """After the session: no node process left running, and no Fast DDS shared-memory file
+    the session created left behind. Processes killed with SIGKILL (on purpose, in some
+    tests) cannot remove theirs: ``fastdds shm clean`` (Fast DDS's own tool) and then this
+    fixture remove every such file no live process holds. What the test process itself
+    holds goes when it exits (``run.sh test`` cleans after pytest)."""
+    procs_before, shm_before = node_processes(), shm_files()
+    yield
+    left = node_processes() - procs_before
+    assert not left, f'node processes left running: {sorted(left)}'
+    clean = Path(sys.executable).parent / 'fastdds'
+    if clean.exists():
+        subprocess.run([str(clean), 'shm', 'clean'], capture_output=True, timeout=60)
+    held = shm_holders()
+    for name in shm_files() - shm_before - held:
+        Path('/dev/shm', name).unlink(missing_ok=True)
+    foreign = (shm_files() - shm_before) - own_shm_files()
+    assert not foreign, f'/dev/shm files held by other processes: {sorted(foreign)}'
 
 
 class Ros:
