@@ -26,12 +26,15 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 NODE_EXES = ('simulator', 'controller', 'planner', 'recorder')
 
 
+def proc_dirs():
+    """/proc/<pid> of every running process."""
+    return (p for p in Path('/proc').iterdir() if p.name.isdigit())
+
+
 def node_processes() -> set[int]:
     """PIDs of running arm_sim node processes (console scripts or python -m modules)."""
     pids = set()
-    for proc in Path('/proc').iterdir():
-        if not proc.name.isdigit():
-            continue
+    for proc in proc_dirs():
         try:
             argv = (proc / 'cmdline').read_bytes().split(b'\0')
         except OSError:
@@ -57,9 +60,7 @@ def own_shm_files() -> set[str]:
 def shm_holders() -> set[str]:
     """Fast DDS files some live process has open or mapped."""
     held = set()
-    for proc in Path('/proc').iterdir():
-        if not proc.name.isdigit():
-            continue
+    for proc in proc_dirs():
         try:
             held |= {Path(line.split()[-1]).name for line in
                      (proc / 'maps').read_text().splitlines() if '/dev/shm/fastrtps_' in line}
