@@ -110,8 +110,9 @@ def cmd_bringup(args: argparse.Namespace) -> int:
 
 def cmd_goal(args: argparse.Namespace) -> int:
     """Send one goal to a running suite and report what became of it."""
-    from arm_dynamics import TwoLinkArm
     from arm_sim.client import SuiteClient, SuiteError
+    from arm_sim.demo import start_pose
+    from arm_sim.launcher import config_file
 
     if not (np.isfinite(args.x) and np.isfinite(args.y)):
         raise CliError(f'goal must be finite, got ({args.x}, {args.y})')
@@ -151,7 +152,7 @@ def cmd_goal(args: argparse.Namespace) -> int:
         end = traj.points[-1].time_from_start
         duration = end.sec + end.nanosec * 1e-9
         print(f'planned: {len(traj.points)} point(s), {duration:.2f} s of motion')
-        arm = TwoLinkArm()  # the tip error below uses the shipped link lengths
+        arm, _ = start_pose(config_file())  # link lengths as config/arm.yaml gives them
         goal = np.array([args.x, args.y])
         t0 = client.sim_time
 

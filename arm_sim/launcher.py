@@ -13,7 +13,6 @@ import signal
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 MODULES = {
@@ -120,12 +119,3 @@ class NodeProcess:
     def output(self) -> str:
         return self.log_path.read_text(errors='replace') if self.log_path else ''
 
-
-def wait_until(predicate, timeout: float, poll: float = 0.05) -> bool:
-    """Poll ``predicate`` until it is true or ``timeout`` s pass (for process-level waits)."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(poll)
-    return bool(predicate())
