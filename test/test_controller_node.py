@@ -206,3 +206,23 @@ def test_controller_killed_then_restarted(ros, launch, suite):
     t = stamp(states[-1])
     run_until(ros, states, t + 3.0)
     assert np.abs(states[-1].velocity).max() < 1e-3, 'control resumed: the arm is held again'
+
+
+def test_stale_joint_states_stop_commanding_until_fresh_ones_arrive(ros, launch):
+    from std_msgs.msg import Float64MultiArray
+    launch('controller', params={'update_on': 'timer', 'control_rate': 50.0,
+                                 'state_timeout': 0.3, 'use_sim_time': False})
+    commands = ros.collect(Float64MultiArray, 'effort_controller/commands')
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    pub = ros.publisher(JointState, 'joint_states')
+    ros.wait_for(lambda: pub.get_subscription_count() > 0, what='the controller')
+    state = JointState(name=JOINTS, position=Q0, velocity=[0.0, 0.0])
+    pub.publish(state)
+    ros.wait_for(lambda: len(commands) >= 3, what='commands on the timer')
+    ros.wait_for(lambda: problems(diags, '/controller', 'stale_state'), what='stale report')
+    n = len(commands)
+    seen = len(diags)
+    ros.wait_for(lambda: len(diags) > seen + 1, what='another diagnostics round')
+    assert len(commands) <= n + 1, 'no commands while the state is stale'
+    pub.publish(state)
+    ros.wait_for(lambda: len(commands) >= n + 3, what='commands after a fresh state')

@@ -198,3 +198,38 @@ def test_bad_parameters_are_refused_with_the_reason(tmp_path):
     assert proc.proc.wait(30) == 2
     out = proc.output()
     assert 'link_masses must be > 0 kg' in out and 'Traceback' not in out
+
+
+def test_single_link_geared_model_follows_the_lectures_equation(ros, launch):
+    from arm_dynamics import SingleLinkGeared, simulate
+    link = SingleLinkGeared()  # the node's geared.* defaults
+    launch('simulator', params={'timing_mode': 'lockstep', 'model': 'single_link_geared',
+                                'initial_positions': [0.3, 0.0]})
+    states = ros.collect(JointState, 'joint_states')
+    pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
+    ros.wait_for(lambda: states, what='first joint state')
+    assert list(states[0].name) == ['joint1_motor', 'joint1']
+    answered = set()
+
+    def drive():
+        t = stamp(states[-1])
+        if t not in answered:
+            answered.add(t)
+            pub.publish(command([0.05]))
+        return t >= 1.0 - 1e-9
+
+    ros.wait_for(drive, timeout=30, what='1 s of simulated time')
+    n = link.gear_ratio
+    ref = simulate(model=link, q0=[0.3 * n], qd0=[0.0], torque=[0.05], duration=1.0,
+                   dt=1e-3, method='solve_ivp')
+    last = {stamp(m): m for m in states}[max(answered)]
+    assert last.position[0] == pytest.approx(ref.q[-1, 0], abs=1e-6), 'motor angle'
+    assert last.position[1] == pytest.approx(ref.q[-1, 0] / n, abs=1e-8), 'link = motor / n'
+
+
+def test_real_time_reports_when_it_cannot_keep_up(ros, launch):
+    # 1000x real time at 1 ms steps needs a million RK4 steps per second: too many.
+    launch('simulator', params={'timing_mode': 'real_time', 'real_time_factor': 1000.0})
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    ros.wait_for(lambda: any('overrun' in m for m in diag_messages(diags)),
+                 what='the overrun report')
