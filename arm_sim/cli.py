@@ -101,6 +101,7 @@ def cmd_bringup(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print('\nstopping ...')
     finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut cleanup
         codes = {p.name: p.stop(signal.SIGINT) for p in procs}
     print('stopped: ' + ', '.join(f'{n} ({c})' for n, c in codes.items()))
     if args.record:
@@ -147,7 +148,8 @@ def cmd_goal(args: argparse.Namespace) -> int:
         except SuiteError as exc:
             raise CliError(str(exc), EXIT_TIMEOUT) from None
         if refusal():
-            raise CliError(f'refused: {refusal().split(": ", 1)[-1]}', EXIT_REFUSED)
+            reason = refusal().split(': ', 1)[-1].removeprefix('goal_pose refused: ')
+            raise CliError(f'refused: {reason}', EXIT_REFUSED)
         traj = client.trajectories[-1]
         end = traj.points[-1].time_from_start
         duration = end.sec + end.nanosec * 1e-9
@@ -246,8 +248,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _interrupt(*_) -> None:
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    # Ctrl-C and SIGTERM both stop cleanly (the node processes are stopped, not orphaned),
+    # also when started from a script that ignores SIGINT for background jobs.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, _interrupt)
     if args.command == 'goal' and args.domain_id is None:
         args.domain_id = int(os.environ.get('ROS_DOMAIN_ID', '0'))
     try:

@@ -142,3 +142,23 @@ def test_arm_sim_goal_reports_reached_and_refused(ros, launch):
 def test_arm_sim_goal_rejects_bad_arguments_in_one_line(args, message):
     out = run_cli(*args, timeout=30)
     assert out.returncode == 1 and out.stderr.count('\n') == 1 and message in out.stderr
+
+
+def test_arm_sim_bringup_runs_the_suite_and_stops_it_cleanly(ros, tmp_path):
+    import signal
+
+    from conftest import DOMAIN_ID
+    states = ros.collect(JointState, 'joint_states')
+    proc = subprocess.Popen([sys.executable, '-m', 'arm_sim.cli', 'bringup', '--out',
+                             str(tmp_path / 'run'), '--domain-id', str(DOMAIN_ID)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env=node_env(DOMAIN_ID))
+    try:
+        ros.wait_for(lambda: len(states) > 20, timeout=30, what='the arm running')
+        assert abs(states[-1].effort[0]) > 5.0, 'the controller holds the arm'
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 0, out
+    assert 'stopped: simulator (0), controller (0), planner (0), recorder (0)' in out
+    assert (tmp_path / 'run' / 'bag' / 'metadata.yaml').exists()
