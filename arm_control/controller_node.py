@@ -93,7 +93,7 @@ class ControllerNode(Node):
         model_args = {k: (p[f'model.{k}'] or p[k]) for k in MODEL_KEYS}
         model_args['gravity'] = p['gravity'] if p['model.gravity'] < 0 else p['model.gravity']
         try:
-            model = TwoLinkArm(**model_args)
+            model = TwoLinkArm.from_params(model_args)
             law = ControlLaw(p['law'], gains_from(p), model, tuple(p['effort_limits']))
         except ValueError as exc:
             raise ConfigError(str(exc)) from None

@@ -169,9 +169,7 @@ def make_model(kind: str, robot: dict, geared: dict) -> Model:
     Raises ValueError naming the parameter if the physics refuses it.
     """
     if kind == 'two_link':
-        return TwoLinkArm(**{k: robot[k] for k in (
-            'link_lengths', 'com_distances', 'link_masses', 'link_inertias', 'gravity',
-            'joint_damping')})
+        return TwoLinkArm.from_params(robot)
     if kind == 'single_link_geared':
         return SingleLinkGeared(**geared)
     raise ValueError(f"model must be 'two_link' or 'single_link_geared', got {kind!r}")

@@ -139,6 +139,16 @@ class TwoLinkArm:
         object.__setattr__(self, '_acc_float', _make_accel(k, math.cos, math.sin))
         object.__setattr__(self, '_acc_array', _make_accel(k, np.cos, np.sin))
 
+    #: The constructor arguments, which are also the robot parameters' names.
+    PARAMETERS = ('link_lengths', 'com_distances', 'link_masses', 'link_inertias', 'gravity',
+                  'joint_damping')
+
+    @classmethod
+    def from_params(cls, params: dict) -> TwoLinkArm:
+        """The arm from robot parameters by name (missing ones take the defaults, other
+        keys are ignored): one construction for simulator, controller and planner."""
+        return cls(**{k: params[k] for k in cls.PARAMETERS if k in params})
+
     # ------------------------------------------------------------------ core formulas
     def _rk4(self, acc: Callable, q1, q2, qd1, qd2, t1, t2, dt: float, n_steps: int):
         """Classic RK4 with the torque held over each step; floats or arrays."""

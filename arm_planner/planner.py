@@ -175,9 +175,7 @@ class PlannerSettings:
 def make_arm(robot: dict) -> TwoLinkArm:
     """The planner's model from robot parameters (the ROBOT_PARAMS names; extra keys are
     ignored)."""
-    return TwoLinkArm(**{k: robot[k] for k in (
-        'link_lengths', 'com_distances', 'link_masses', 'link_inertias', 'gravity',
-        'joint_damping')})
+    return TwoLinkArm.from_params(robot)
 
 
 def plan_goal(arm: TwoLinkArm, effort_limits, q_current, goal,

@@ -73,9 +73,7 @@ def start_pose(config: Path) -> tuple[TwoLinkArm, np.ndarray]:
     data = yaml.safe_load(config.read_text())
     robot = data.get('/**', {}).get('ros__parameters', {})
     sim = data.get('/**/simulator', {}).get('ros__parameters', {})
-    keys = ('link_lengths', 'com_distances', 'link_masses', 'link_inertias', 'gravity',
-            'joint_damping')
-    arm = TwoLinkArm(**{k: robot[k] for k in keys if k in robot})
+    arm = TwoLinkArm.from_params(robot)
     return arm, np.array(sim.get('initial_positions', [-0.4, 1.2]), dtype=float)
 
 
