@@ -154,8 +154,9 @@ def test_arm_sim_bringup_runs_the_suite_and_stops_it_cleanly(ros, tmp_path):
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             env=node_env(DOMAIN_ID))
     try:
-        ros.wait_for(lambda: len(states) > 20, timeout=30, what='the arm running')
-        assert abs(states[-1].effort[0]) > 5.0, 'the controller holds the arm'
+        # Real time: the arm runs (and sags) from the start; then the controller takes it.
+        ros.wait_for(lambda: states and abs(states[-1].effort[0]) > 5.0, timeout=30,
+                     what='the controller to hold the arm')
     finally:
         proc.send_signal(signal.SIGTERM)
         out, _ = proc.communicate(timeout=30)
