@@ -110,7 +110,7 @@ class Demo:
         self.echo(f'starting simulator, controller, planner and recorder (ROS domain '
                   f'{self.domain}, localhost only; logs in {self.out / "logs"})')
         self._start('recorder', output=str(bag))
-        self._start('simulator', timing_mode='lockstep', pause_at=0.5)
+        self._start('simulator', timing_mode='lockstep', pause_at=0.05)
         self._start('planner')
         client = SuiteClient(self.domain)
         try:
@@ -135,6 +135,22 @@ class Demo:
         c.spin_until(lambda: self._recorded(c, 'joint_states'), wait,
                      'the recorder to record a joint state', self._alive)
         self._start('controller')
+        # The recorder must also be matched with the controller's topics before the first
+        # task: creep through the initial hold until it has recorded them (the recorded
+        # joint states do not depend on where the simulation pauses).
+        hold = 0.05
+        while not all(self._recorded(c, t) for t in ('effort_controller/commands',
+                                                     'arm_controller/reference')):
+            try:
+                self._run_to(c, hold, answered=False)
+                c.spin_until(lambda: all(self._recorded(c, t) for t in (
+                    'effort_controller/commands', 'arm_controller/reference')), 1.5,
+                    'the recorder', self._alive)
+            except SuiteError:
+                hold = round(hold + 0.05, 2)
+                if hold >= 0.5:
+                    raise SuiteError('the recorder receives no commands or references from '
+                                     'the controller') from None
         t_next = 0.5
         self.echo(f'the arm starts at rest at q = {self.q0.tolist()} rad, tip Ps = '
                   f'({self.tasks[1].goal[0]:.3f}, {self.tasks[1].goal[1]:.3f}) m, held by '
@@ -168,13 +184,14 @@ class Demo:
             self.echo(f'        tip at ({tip[0]:.4f}, {tip[1]:.4f}) m, {miss * 1e3:.2f} mm '
                       'from the goal after settling')
 
-    def _run_to(self, c: SuiteClient, t: float) -> None:
-        """Run to ``t`` and wait until the controller has answered the state at ``t``: a
-        parameter or trajectory change before that answer would make the run depend on
-        timing."""
+    def _run_to(self, c: SuiteClient, t: float, answered: bool = True) -> None:
+        """Run to ``t`` and (``answered``) wait until the controller has answered the
+        state at ``t``: a parameter or trajectory change before that answer would make the
+        run depend on timing."""
         c.set_params('simulator', pause_at=t)
-        c.spin_until(lambda: c.sim_time >= t - 1e-9 and c.reference_time >= t - 1e-9, 60.0,
-                     f'simulated time {t:.2f} s', self._alive)
+        c.spin_until(lambda: c.sim_time >= t - 1e-9 and (
+            not answered or c.reference_time >= t - 1e-9), 60.0,
+            f'simulated time {t:.2f} s', self._alive)
 
     @staticmethod
     def _refusal(c: SuiteClient) -> str | None:
