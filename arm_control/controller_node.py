@@ -39,8 +39,7 @@ stamped like the state it answers). Until the first trajectory it holds the firs
 position. Laws: pd, pd_gravity, computed_torque, pid. Reports on /diagnostics.
 '''
 
-MODEL_KEYS = ('link_lengths', 'com_distances', 'link_masses', 'link_inertias',
-              'joint_damping')
+MODEL_KEYS = tuple(k for k in TwoLinkArm.PARAMETERS if k != 'gravity')  # model.<key>
 
 CONTROL_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('law', 'string', 'computed_torque', 'Control law', choices=LAWS),
