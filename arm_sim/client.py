@@ -46,11 +46,12 @@ class SuiteClient:
         self.diagnostics: list[tuple[str, str, str]] = []  # (node, level, message)
         self.diagnostic_values: list[tuple[str, dict[str, str]]] = []  # (node, key: value)
         n = self.node
-        n.create_subscription(JointState, 'joint_states', self._keep_state, 100)
+        n.create_subscription(JointState, 'joint_states', self._keep_state, 1000)
         n.create_subscription(JointTrajectory, 'arm_controller/joint_trajectory',
                               self.trajectories.append, 10)
         n.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 100)
-        n.create_subscription(JointState, 'arm_controller/reference', self._on_reference, 100)
+        n.create_subscription(JointState, 'arm_controller/reference', self._on_reference,
+                              1000)
         self.goal_pub = n.create_publisher(PoseStamped, 'goal_pose', 10)
         self._clients: dict[str, object] = {}
 
