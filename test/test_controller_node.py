@@ -16,6 +16,7 @@ from arm_control.core import ControllerCore
 from arm_control.laws import ControlLaw, Gains
 from arm_control.trajectory import Trajectory, TrajectoryPoint, validate_trajectory
 from arm_dynamics import TwoLinkArm, simulate
+from arm_sim.client import stamp_of as stamp
 from arm_sim.launcher import config_file
 
 ARM = TwoLinkArm()
@@ -23,10 +24,6 @@ Q0 = [-0.4, 1.2]
 JOINTS = ['joint1', 'joint2']
 CONFIG = config_file()
 KP, KD = (100.0, 60.0), (20.0, 12.0)  # config/arm.yaml computed-torque gains
-
-
-def stamp(msg) -> float:
-    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
 
 def duration(seconds: float) -> Duration:

@@ -13,12 +13,9 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from arm_dynamics import TwoLinkArm
+from arm_sim.client import stamp_of as stamp
 
 ARM = TwoLinkArm()  # the node's defaults are the contract's arm
-
-
-def stamp(msg: JointState) -> float:
-    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
 
 def command(values) -> Float64MultiArray:

@@ -14,6 +14,7 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from arm_dynamics import TwoLinkArm
+from arm_sim.client import stamp_of as stamp
 from arm_sim.launcher import config_file, node_env
 
 ARM = TwoLinkArm()
@@ -21,10 +22,6 @@ Q0 = np.array([-0.4, 1.2])
 PS = ARM.forward_kinematics(Q0)
 PF = np.array([0.5, 1.2])
 CONFIG = config_file()
-
-
-def stamp(msg) -> float:
-    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
 
 def goal(x: float, y: float) -> PoseStamped:
