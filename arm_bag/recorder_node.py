@@ -1,7 +1,9 @@
 """``recorder`` node: records topics as serialized messages into a rosbag2 bag (MCAP).
 
 Thin ROS shell around :class:`arm_bag.writer.BagWriter`: raw (undeserialised) subscriptions,
-receive time = log time, the graph polled every 0.5 s (wall) for topics that appear later,
+log time = the recorder's clock at receive (wall-clock system time by default; simulated
+time, the latest ``clock`` received, with ``use_sim_time: true``, as ``ros2 bag record
+--use-sim-time`` does), the graph polled every 0.5 s (wall) for topics that appear later,
 the robot parameters stored as the MCAP metadata record ``arm_sim_robot`` (JSON values).
 
 Durability: the open chunk is written and ``metadata.yaml`` rewritten every
@@ -31,11 +33,20 @@ from rclpy.qos import (
 from arm_bag.msgdefs import MessageDefinitionError, QosProfile, qos_yaml, schema_text, type_hash
 from arm_bag.writer import BagWriteError, BagWriter
 from arm_sim.params import ROBOT_PARAMS, ParamSpec
-from arm_sim.ros_common import ConfigError, Diagnostics, declare_parameters, run_node, steady_clock
+from arm_sim.ros_common import (
+    ConfigError,
+    Diagnostics,
+    clock_in_namespace,
+    declare_parameters,
+    run_node,
+    steady_clock,
+)
 
 SUMMARY = '''
 Records topics into a rosbag2 bag directory (metadata.yaml + <name>_0.mcap, MCAP profile
-ros2, CDR messages, ros2msg schemas) without deserialising them; log time = receive time.
+ros2, CDR messages, ros2msg schemas) without deserialising them; log time = receive time on
+the recorder's clock: wall-clock system time, or simulated time (the latest clock message)
+with use_sim_time:=true. Analysis uses the messages' header stamps, never the log time.
 Topics that appear later are picked up (graph polled every 0.5 s). SIGINT/SIGTERM close the
 bag (exit 0); a SIGKILL loses at most the last flush_period of messages. The robot
 parameters are stored in the MCAP metadata record arm_sim_robot. Reports received,
@@ -97,7 +108,7 @@ class RecorderNode(Node):
     """See the module docstring."""
 
     def __init__(self) -> None:
-        super().__init__('recorder')
+        super().__init__('recorder', cli_args=clock_in_namespace())
         p = declare_parameters(self, ROBOT_PARAMS + RECORDER_PARAMS)
         out = Path(p['output']).expanduser()
         if out.exists():
@@ -110,6 +121,7 @@ class RecorderNode(Node):
             self.writer.write_metadata_yaml()
         except (OSError, ValueError) as exc:
             raise ConfigError(f'output {str(out)!r}: {exc}') from None
+        self.sim_clock = bool(self.get_parameter('use_sim_time').value)
         self.wanted = list(p['topics'])
         self.all_topics = '*' in self.wanted
         self.resolved = {self.resolve_topic_name(t) for t in self.wanted if t != '*'}
@@ -190,7 +202,7 @@ class RecorderNode(Node):
 
     # ------------------------------------------------------------------ data
     def _on_message(self, channel: int, data: bytes, topic: str) -> None:
-        now = time.time_ns()
+        now = self.get_clock().now().nanoseconds if self.sim_clock else time.time_ns()
         self.received += 1
         self.per_topic[topic] += 1
         if self.stopped:

@@ -1,6 +1,11 @@
 """``controller`` node: joint-space control of the arm over ROS topics.
 
-Thin shell around :class:`arm_control.core.ControllerCore`.
+Thin shell around :class:`arm_control.core.ControllerCore`. In lockstep (``update_on:
+joint_states``) each command names the state it answers (:func:`arm_dynamics.timing.
+answer_tag`); a state that comes again (the simulator re-sends one that got no answer: the
+command was lost, or published before the simulator had matched us) is answered again with
+the very same command, never a recomputed one, so what happened meanwhile (a parameter or
+trajectory change) cannot change the run.
 """
 
 from __future__ import annotations
@@ -16,12 +21,13 @@ from trajectory_msgs.msg import JointTrajectory
 from arm_control.core import ControllerCore
 from arm_control.laws import LAWS, ControlLaw, Gains
 from arm_control.trajectory import TrajectoryError, TrajectoryPoint
-from arm_dynamics.simulation import answer_tag
+from arm_dynamics.timing import answer_tag
 from arm_dynamics.two_link import TwoLinkArm
 from arm_sim.params import ROBOT_PARAMS, ParamSpec
 from arm_sim.ros_common import (
     ConfigError,
     Diagnostics,
+    clock_in_namespace,
     declare_parameters,
     on_parameter_changes,
     run_node,
@@ -37,6 +43,11 @@ arrival). Publishes effort_controller/commands (std_msgs/Float64MultiArray, N m)
 arm_controller/reference (JointState: desired position and velocity, commanded effort,
 stamped like the state it answers). Until the first trajectory it holds the first measured
 position. Laws: pd, pd_gravity, computed_torque, pid. Reports on /diagnostics.
+
+A trajectory that arrives before the first joint state waits for it (refused after
+state_timeout of wall time without one). When simulated time goes back or jumps (a
+restarted simulator, a reset, a bag replay) the trajectory is dropped, the measured
+position held and the jump reported; a restarted controller holds where the arm is.
 '''
 
 MODEL_KEYS = tuple(k for k in TwoLinkArm.PARAMETERS if k != 'gravity')  # model.<key>
@@ -62,8 +73,13 @@ CONTROL_PARAMS: tuple[ParamSpec, ...] = (
               minimum=0.0, strict_min=True, maximum=10000.0, read_only=True),
     ParamSpec('state_timeout', 'double', 0.5,
               'Wall-clock age of the last joint state after which the controller stops '
-              'commanding and reports (timer mode); commanding resumes with fresh states',
+              'commanding and reports (timer mode); commanding resumes with fresh states. '
+              'Also how long a trajectory received before any joint state waits for one',
               's', minimum=0.0, strict_min=True, maximum=3600.0),
+    ParamSpec('time_jump_threshold', 'double', 1.0,
+              'A forward step of simulated time between two joint states longer than this '
+              'is a time jump: the trajectory is dropped and the measured position held',
+              's', minimum=0.0, strict_min=True, maximum=1e6, read_only=True),
 ) + tuple(
     ParamSpec(f'model.{k}', 'doubles', [], f'Controller model {k.replace("_", " ")}; '
               'empty = the robot parameter (set to study model mismatch)',
@@ -78,6 +94,10 @@ def _stamp(msg) -> float:
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
 
+def _stamp_ns(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
 def gains_from(p: dict) -> Gains:
     return Gains(kp=p['gains.kp'], kd=p['gains.kd'], ki=p['gains.ki'],
                  i_clamp=p['gains.i_clamp'])
@@ -87,7 +107,7 @@ class ControllerNode(Node):
     """See SUMMARY."""
 
     def __init__(self) -> None:
-        super().__init__('controller')
+        super().__init__('controller', cli_args=clock_in_namespace())
         p = declare_parameters(self, ROBOT_PARAMS + CONTROL_PARAMS)
         model_args = {k: (p[f'model.{k}'] or p[k]) for k in MODEL_KEYS}
         model_args['gravity'] = p['gravity'] if p['model.gravity'] < 0 else p['model.gravity']
@@ -97,17 +117,21 @@ class ControllerNode(Node):
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
         self.params = p
-        self.core = ControllerCore(p['joint_names'], law)
+        self.core = ControllerCore(p['joint_names'], law,
+                                   jump_threshold=p['time_jump_threshold'])
         self.cmd_pub = self.create_publisher(Float64MultiArray, 'effort_controller/commands',
                                              10)
         self.ref_pub = self.create_publisher(JointState, 'arm_controller/reference', 10)
         self.create_subscription(JointState, 'joint_states', self._on_state, 10)
         self.create_subscription(JointTrajectory, 'arm_controller/joint_trajectory',
                                  self._on_trajectory, 10)
-        self.diag = Diagnostics(self)
+        self.diag = Diagnostics(self, sim_time=lambda: self.core.last_time)
         self.latest: tuple[float, np.ndarray, np.ndarray] | None = None
         self.latest_wall = 0.0
-        self.answered: float | None = None
+        # lockstep: the last answer, re-sent verbatim if its state comes again
+        self.answer: tuple[int, np.ndarray, Float64MultiArray] | None = None
+        self.resent = 0
+        self.early: tuple[JointTrajectory, float] | None = None  # before any state (wall)
         self.stale = False
         self.saturations = 0
         if p['update_on'] == 'timer':
@@ -155,13 +179,23 @@ class ControllerNode(Node):
         if self.stale:
             self.stale = False
             self.get_logger().info('fresh joint states: commanding again')
+        if self.early is not None:
+            traj, self.early = self.early[0], None
+            self._on_trajectory(traj)
         if self.params['update_on'] == 'joint_states':
-            self._control(msg.header.stamp)
+            stamp_ns = _stamp_ns(msg)
+            answer = self.answer
+            if answer is not None and answer[0] == stamp_ns and np.array_equal(answer[1], q):
+                self.resent += 1  # the same state again: its answer was lost or early
+                self.cmd_pub.publish(answer[2])
+                return
+            self._control(stamp_ns)
 
     def _on_trajectory(self, msg: JointTrajectory) -> None:
         if self.latest is None:
-            self.diag.problem('rejected_trajectory', 'trajectory refused: no joint state '
-                              'received yet')
+            # A controller that just started has no state yet: keep the trajectory until
+            # the first one comes (refused after state_timeout, see _watch).
+            self.early = (msg, time.monotonic())
             return
         t_now, q, qd = self.latest
         start = _stamp(msg) or t_now
@@ -169,40 +203,41 @@ class ControllerNode(Node):
                                   p.positions, p.velocities, p.accelerations)
                   for p in msg.points]
         try:
-            traj = self.core.set_trajectory(msg.joint_names, points, start, q, qd)
+            traj = self.core.set_trajectory(msg.joint_names, points, start, q, qd, now=t_now)
         except TrajectoryError as exc:
             self.diag.problem('rejected_trajectory', f'trajectory refused: {exc}; keeping '
-                              'the current reference')
+                              'the current reference', start_time=f'{start:.9f}')
             return
         text = (f'{len(msg.points)} point(s) over {traj.duration:.3f} s from t={start:.3f} s')
         self.get_logger().info(f'new trajectory: {text}')
-        self.diag.event('trajectory_accepted', text)
+        self.diag.event('trajectory_accepted', text, start_time=f'{start:.9f}',
+                        duration=f'{traj.duration:.9f}', points=len(msg.points))
 
     # ------------------------------------------------------------------ output
     def _on_timer(self) -> None:
         if self.latest is not None and not self.stale:
             self._control(None)
 
-    def _control(self, stamp) -> None:
+    def _control(self, stamp_ns: int | None) -> None:
         t, q, qd = self.latest
-        if stamp is not None and self.answered == t:
-            return  # a re-sent state (simulator heartbeat) that we already answered
         step = self.core.update(t, q, qd)
+        if step.jump:
+            self.diag.problem('time_jump', f'{step.jump}: trajectory dropped, holding the '
+                              f'measured position {q.round(4).tolist()} rad')
         cmd = step.command
         out = Float64MultiArray(data=cmd.tau.tolist())
-        if stamp is not None:  # lockstep: name the state this command answers
-            out.layout.dim = [MultiArrayDimension(
-                label=answer_tag(stamp.sec * 1_000_000_000 + stamp.nanosec),
-                size=len(out.data), stride=len(out.data))]
+        if stamp_ns is not None:  # lockstep: name the state this command answers
+            out.layout.dim = [MultiArrayDimension(label=answer_tag(stamp_ns),
+                                                  size=len(out.data), stride=len(out.data))]
+            self.answer = (stamp_ns, q, out)
         self.cmd_pub.publish(out)
-        if self.cmd_pub.get_subscription_count() > 0:
-            self.answered = t  # delivered: a heartbeat of this state needs no new answer
         ref = JointState(name=list(self.core.joint_names), position=step.q_des.tolist(),
                          velocity=step.qd_des.tolist(), effort=cmd.tau.tolist())
-        sec = int(t)
-        ref.header.stamp.sec, ref.header.stamp.nanosec = sec, int(round((t - sec) * 1e9))
-        if stamp is not None:
-            ref.header.stamp = stamp
+        if stamp_ns is not None:
+            ref.header.stamp.sec, ref.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        else:
+            sec = int(t)
+            ref.header.stamp.sec, ref.header.stamp.nanosec = sec, int(round((t - sec) * 1e9))
         self.ref_pub.publish(ref)
         if cmd.saturated.any():
             self.saturations += 1
@@ -211,7 +246,13 @@ class ControllerNode(Node):
                               f' (wanted {cmd.raw.round(2).tolist()} N m)', 'WARN')
 
     def _watch(self) -> None:
-        age = time.monotonic() - self.latest_wall
+        now = time.monotonic()
+        if self.early is not None and now - self.early[1] > self.params['state_timeout']:
+            self.early = None
+            self.diag.problem('rejected_trajectory', 'trajectory refused: no joint state '
+                              f"within {self.params['state_timeout']:g} s (wall) of it, so "
+                              'the start of the motion is unknown')
+        age = now - self.latest_wall
         if self.latest is not None and not self.stale and age > self.params['state_timeout']:
             self.stale = True
             self.diag.problem('stale_state', f'no joint state for {age:.2f} s: stopped '
@@ -223,7 +264,8 @@ class ControllerNode(Node):
         self.diag.set(level, message, law=self.core.law.law,
                       trajectories_accepted=self.core.trajectories_accepted,
                       holding_start=self.core.holding_start,
-                      saturated_ticks=self.saturations)
+                      saturated_ticks=self.saturations, resent_answers=self.resent,
+                      time_jumps=self.core.jumps)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -4,6 +4,11 @@
 Trajectory` and its start time in simulated seconds), holds the first measured position
 until a trajectory arrives, replaces the reference when a valid trajectory comes (an
 invalid one is refused and the current reference kept) and evaluates the control law.
+
+Time jumps: when the measured state's simulated time goes backwards (a restarted simulator,
+a bag replayed), leaps forward by more than ``jump_threshold``, or the state moves further
+in one step than its velocities allow (a reset), the reference is dropped and the measured
+position held; :attr:`Step.jump` says why. A repeated stamp (a re-sent state) is not a jump.
 """
 
 from __future__ import annotations
@@ -14,7 +19,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from arm_control.laws import Command, ControlLaw
-from arm_control.trajectory import Trajectory, TrajectoryPoint, validate_trajectory
+from arm_control.trajectory import (
+    Trajectory,
+    TrajectoryError,
+    TrajectoryPoint,
+    validate_trajectory,
+)
 
 
 @dataclass(frozen=True)
@@ -25,6 +35,7 @@ class Step:
     q_des: np.ndarray
     qd_des: np.ndarray
     qdd_des: np.ndarray
+    jump: str | None = None  # why the reference was dropped at this step, else None
 
 
 class ControllerCore:
@@ -34,15 +45,33 @@ class ControllerCore:
     ----------
     joint_names : the controller's joints, in command order.
     law : the :class:`ControlLaw` to evaluate (replaceable at run time).
+    jump_threshold : s > 0 -- a forward step of simulated time longer than this between two
+        states is a time jump.
+    state_jump_tolerance : rad >= 0 -- a joint moving further between two states than
+        ``dt * max(|qd|)`` plus this is a state jump (e.g. a simulator reset).
     """
 
-    def __init__(self, joint_names: Sequence[str], law: ControlLaw) -> None:
+    def __init__(self, joint_names: Sequence[str], law: ControlLaw, *,
+                 jump_threshold: float = 1.0, state_jump_tolerance: float = 0.1) -> None:
+        if not jump_threshold > 0:
+            raise ValueError(f'jump_threshold must be > 0 s, got {jump_threshold}')
+        if not state_jump_tolerance >= 0:
+            raise ValueError(f'state_jump_tolerance must be >= 0 rad, got '
+                             f'{state_jump_tolerance}')
         self.joint_names = tuple(joint_names)
         self.law = law
+        self.jump_threshold = jump_threshold
+        self.state_jump_tolerance = state_jump_tolerance
         self.trajectory: Trajectory | None = None
         self.start = 0.0
-        self.last_time: float | None = None
+        self.last: tuple[float, np.ndarray, np.ndarray] | None = None  # (t, q, qd)
         self.trajectories_accepted = 0
+        self.jumps = 0
+
+    @property
+    def last_time(self) -> float | None:
+        """Simulated time [s] of the last state evaluated."""
+        return None if self.last is None else self.last[0]
 
     @property
     def holding_start(self) -> bool:
@@ -50,21 +79,57 @@ class ControllerCore:
         return self.trajectories_accepted == 0
 
     def set_trajectory(self, joint_names: Sequence[str], points: Sequence[TrajectoryPoint],
-                       start: float, q: np.ndarray, qd: np.ndarray) -> Trajectory:
+                       start: float, q: np.ndarray, qd: np.ndarray,
+                       now: float | None = None) -> Trajectory:
         """Validate and make a trajectory the reference from ``start`` [s, sim time] on,
-        starting from the measured state (q, qd). Raises TrajectoryError (reference kept)."""
+        starting from the measured state (q, qd) at simulated time ``now`` [s] (default
+        ``start``). Raises TrajectoryError (reference kept), also for a trajectory that
+        ends before ``now`` (as joint_trajectory_controller refuses one)."""
         times, pos, vel, acc = validate_trajectory(joint_names, points, self.joint_names)
+        now = start if now is None else now
+        if start + times[-1] < now:
+            raise TrajectoryError(
+                f'trajectory ends in the past: it starts at t={start:.3f} s and ends at '
+                f't={start + times[-1]:.3f} s, but the state is at t={now:.3f} s')
         self.trajectory = Trajectory(q, qd, times, pos, vel, acc)
         self.start = start
         self.trajectories_accepted += 1
         return self.trajectory
 
+    def hold(self, t: float, q: np.ndarray, qd: np.ndarray) -> None:
+        """Drop the reference and hold position ``q`` from ``t`` [s] on."""
+        self.trajectory = Trajectory(q, qd, np.zeros(1), np.array([q], dtype=float))
+        self.start = t
+
+    def jump_reason(self, t: float, q: np.ndarray, qd: np.ndarray) -> str | None:
+        """Why the state at ``t`` [s] does not continue the last one, or None."""
+        if self.last is None:
+            return None
+        t0, q0, qd0 = self.last
+        if t < t0:
+            return f'simulated time went back from {t0:.3f} s to {t:.3f} s'
+        dt = t - t0
+        if dt > self.jump_threshold:
+            return (f'simulated time jumped from {t0:.3f} s to {t:.3f} s (more than '
+                    f'{self.jump_threshold:g} s)')
+        moved = np.abs(q - q0)
+        reach = dt * np.maximum(np.abs(qd0), np.abs(qd)) + self.state_jump_tolerance
+        if (moved > reach).any():
+            return (f'the state jumped at t={t:.3f} s: joints moved {moved.round(4).tolist()}'
+                    f' rad in {dt:.3f} s, more than their velocities allow')
+        return None
+
     def update(self, t: float, q: np.ndarray, qd: np.ndarray) -> Step:
         """The command for state (q, qd) measured at simulated time ``t`` [s]."""
+        jump = self.jump_reason(t, q, qd)
         if self.trajectory is None:  # first state: hold where the arm is
-            self.trajectory = Trajectory(q, qd, np.zeros(1), np.array([q], dtype=float))
-            self.start = t
-        dt = 0.0 if self.last_time is None else max(t - self.last_time, 0.0)
-        self.last_time = t
+            self.hold(t, q, qd)
+        elif jump:
+            self.jumps += 1
+            self.hold(t, q, qd)
+            self.law.reset()
+        dt = 0.0 if self.last is None or jump else max(t - self.last[0], 0.0)
+        self.last = (t, np.array(q, dtype=float), np.array(qd, dtype=float))
         q_des, qd_des, qdd_des = self.trajectory.sample(t - self.start)
-        return Step(self.law(q, qd, q_des, qd_des, qdd_des, dt), q_des, qd_des, qdd_des)
+        return Step(self.law(q, qd, q_des, qd_des, qdd_des, dt), q_des, qd_des, qdd_des,
+                    jump)

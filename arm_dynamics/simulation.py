@@ -19,26 +19,6 @@ from arm_dynamics.geared_link import SingleLinkGeared
 from arm_dynamics.integrate import Model
 from arm_dynamics.two_link import TwoLinkArm
 
-#: Lockstep protocol: a command may name the joint state it answers in
-#: ``layout.dim[0].label`` as ``joint_states@<sec>.<nanosec>`` (arm_sim's controller does).
-ANSWER_TAG = 'joint_states@'
-
-
-def answer_tag(time_ns: int) -> str:
-    """The label naming the state stamped ``time_ns`` [ns] that a command answers."""
-    sec, nsec = divmod(time_ns, 1_000_000_000)
-    return f'{ANSWER_TAG}{sec}.{nsec:09d}'
-
-
-def parse_answer_tag(label: str) -> int | None:
-    """The stamp [ns] named by :func:`answer_tag`, or None for any other label."""
-    if not label.startswith(ANSWER_TAG):
-        return None
-    sec, _, nsec = label[len(ANSWER_TAG):].partition('.')
-    if not (sec.isdigit() and nsec.isdigit() and len(nsec) == 9):
-        return None
-    return int(sec) * 1_000_000_000 + int(nsec)
-
 
 class CommandError(ValueError):
     """An effort command that must not reach the physics; the message says why."""
@@ -117,7 +97,7 @@ class SimulatorCore:
         self.command = validate_command(data, self.n)
 
     def clear_command(self) -> None:
-        """Zero torque (command timeout)."""
+        """Zero torque (real_time command watchdog)."""
         self.command = np.zeros(self.n)
 
     @property

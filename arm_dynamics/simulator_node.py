@@ -1,19 +1,10 @@
 """``simulator`` node: integrates the arm and publishes ``joint_states`` and ``clock``.
 
-Thin ROS shell around :class:`arm_dynamics.simulation.SimulatorCore`: parameters in,
+Thin ROS shell around :class:`arm_dynamics.simulation.SimulatorCore` (the physics) and
+:class:`arm_dynamics.timing.Timekeeper` (when time advances): parameters in,
 ``effort_controller/commands`` (std_msgs/Float64MultiArray) in, JointState and Clock out,
-``~/reset`` (std_srvs/Trigger), and ``/diagnostics``.
-
-Timing modes (parameter ``timing_mode``):
-
-* ``real_time`` -- simulated time follows the wall clock times ``real_time_factor``; if the
-  node cannot keep up it says so on /diagnostics and continues from where it is.
-* ``as_fast_as_possible`` -- steps continuously, serving callbacks between steps.
-* ``lockstep`` -- publishes the state, then advances one control period (1/publish_rate)
-  only when a valid command arrives: deterministic, as fast as the loop allows. Before the
-  first command it waits (re-sending the state every 0.2 s). If commands then stop for
-  ``command_timeout``, the torque goes to zero and the simulator runs on in real time
-  until commands return.
+``~/reset`` (std_srvs/Trigger), and ``/diagnostics``. The node only feeds the two pure
+objects messages and wall time; see :mod:`arm_dynamics.timing` for the timing modes.
 """
 
 from __future__ import annotations
@@ -26,11 +17,20 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
-from arm_dynamics.simulation import CommandError, SimulatorCore, make_model, parse_answer_tag
+from arm_dynamics.simulation import CommandError, SimulatorCore, make_model, validate_command
+from arm_dynamics.timing import (
+    ADVANCE,
+    REMOVED_MODES,
+    STALE,
+    TIMING_MODES,
+    Timekeeper,
+    parse_answer_tag,
+)
 from arm_sim.params import ROBOT_PARAMS, ParamSpec
 from arm_sim.ros_common import (
     ConfigError,
     Diagnostics,
+    clock_in_namespace,
     declare_parameters,
     on_parameter_changes,
     run_node,
@@ -44,11 +44,12 @@ simulated time) and clock (rosgraph_msgs/Clock); takes effort_controller/command
 (std_msgs/Float64MultiArray, N m per joint, saturated at effort_limits). Service ~/reset
 (std_srvs/Trigger) restores the initial state. Reports on /diagnostics.
 
-timing_mode: real_time (follows the wall clock times real_time_factor), as_fast_as_possible,
-or lockstep (advances one control period, 1/publish_rate, per valid command: deterministic).
+timing_mode: real_time (simulated time follows the wall clock times real_time_factor; the
+initial state is held until the first command) or lockstep (one control period,
+1/publish_rate, per valid command for the current state: deterministic, as fast as the
+closed loop runs; a silent controller makes time stand still and is reported, never
+replaced by zero torque). Simulated time is the only time that changes the physics.
 '''
-MODES = ('real_time', 'as_fast_as_possible', 'lockstep')
-HEARTBEAT = 0.2  # s (wall): lockstep re-sends the current state when no command came
 
 SIM_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('model', 'string', 'two_link', 'Simulated model',
@@ -67,10 +68,16 @@ SIM_PARAMS: tuple[ParamSpec, ...] = (
               'Initial and reset joint velocities (single_link_geared: first value = link '
               'speed)', 'rad/s', minimum=-1000.0, maximum=1000.0),
     ParamSpec('command_timeout', 'double', 0.5,
-              'Wall-clock time without a valid command after which the torque is set to '
-              'zero (and reported); 0 disables', 's', minimum=0.0, maximum=3600.0),
+              'Wall-clock time without a valid command that is reported. lockstep: time '
+              'keeps standing still (a WARN with the time waited); real_time: the torque '
+              'also goes to zero until commands return, as a drive watchdog would. 0 '
+              'disables', 's', minimum=0.0, maximum=3600.0),
     ParamSpec('timing_mode', 'string', 'real_time', 'How simulated time advances',
-              choices=MODES),
+              choices=TIMING_MODES, hints=tuple(REMOVED_MODES.items())),
+    ParamSpec('wait_for_command', 'bool', True,
+              'real_time: hold the initial state (no integration, time stands at its start) '
+              'until the first valid command; false = integrate from the start (the arm '
+              'falls until commanded)'),
     ParamSpec('real_time_factor', 'double', 1.0,
               'Simulated seconds per wall second in real_time mode', 'x', minimum=0.0,
               strict_min=True, maximum=1000.0),
@@ -105,11 +112,15 @@ def _ns(seconds: float) -> int:
     return int(round(seconds * 1e9))
 
 
+def _pause_ns(pause_at: float) -> int | None:
+    return None if pause_at < 0 else _ns(pause_at)
+
+
 class SimulatorNode(Node):
     """See the module docstring."""
 
     def __init__(self) -> None:
-        super().__init__('simulator')
+        super().__init__('simulator', cli_args=clock_in_namespace())
         p = declare_parameters(self, ROBOT_PARAMS + SIM_PARAMS)
         robot = {s.name: p[s.name] for s in ROBOT_PARAMS}
         step_ns, period_ns = _ns(p['physics_step']), _ns(1.0 / p['publish_rate'])
@@ -133,27 +144,27 @@ class SimulatorNode(Node):
                                   physics_step_ns=step_ns, control_period_ns=period_ns,
                                   velocity_limit=p['velocity_limit'],
                                   joint_names=robot['joint_names'])
+        self.keeper = Timekeeper(mode=p['timing_mode'], period_ns=period_ns,
+                                 real_time_factor=p['real_time_factor'],
+                                 hold_until_command=p['wait_for_command'],
+                                 report_after_ns=_ns(p['command_timeout']))
+        self.keeper.pause_at_ns = _pause_ns(p['pause_at'])
         self.state_pub = self.create_publisher(JointState, 'joint_states', 10)
         self.clock_pub = self.create_publisher(Clock, 'clock', 10)
         self.create_subscription(Float64MultiArray, 'effort_controller/commands',
                                  self._on_command, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
-        self.diag = Diagnostics(self)
-        self.commands = 0
-        self.stale_commands = 0
-        self.ever_commanded = False
-        self.timed_out = False
-        self.last_command_wall = time.monotonic()
-        self.last_publish_wall = 0.0
-        self.pending_answer = False  # lockstep: a command for the current state is held
-        self.anchor: tuple[int, int] | None = None  # (wall ns, sim ns) for real-time pacing
-        self.window = (time.monotonic(), 0)
-        self.achieved_rtf = 0.0
+        self.diag = Diagnostics(self, sim_time=lambda: self.core.time)
+        self.timed_out = False  # real_time watchdog: torque zeroed until commands return
+        self.last_command_wall = time.monotonic_ns()
+        self.pending = False  # lockstep: the current state's answer is held (paused)
+        self.wait_reported: float | None = None  # wall s waited at the last wait report
+        self.window = None
         self.rt_timer = None
         self._make_rt_timer()
         self.create_timer(0.05, self._housekeeping, clock=steady_clock())
         on_parameter_changes(self, SIM_PARAMS, self._validate_change, self._apply_change)
-        self.publish_state()
+        self.publish_state(new_state=True)
         self.get_logger().info(
             f"{p['model']} in {p['timing_mode']} mode: physics step {p['physics_step']:g} s, "
             f"publishing at {p['publish_rate']:g} Hz, q0={self.core.q.tolist()}")
@@ -177,16 +188,26 @@ class SimulatorNode(Node):
 
     def _apply_change(self, changed: dict) -> None:
         self.params.update(changed)
+        k = self.keeper
         if 'initial_positions' in changed or 'initial_velocities' in changed:
             q0, qd0 = self._initial_state(self.core.model, self.params['initial_positions'],
                                           self.params['initial_velocities'])
             self.core.q0[:], self.core.qd0[:] = q0, qd0
+        if 'timing_mode' in changed:
+            k.set_mode(changed['timing_mode'])
         if 'real_time_factor' in changed:
+            k.real_time_factor = changed['real_time_factor']
             self._make_rt_timer()
-        if 'timing_mode' in changed or 'real_time_factor' in changed or 'pause_at' in changed:
-            self.anchor = None
-        if 'pause_at' in changed and not self.paused and self.pending_answer:
-            self._lockstep_advance()
+        if 'command_timeout' in changed:
+            k.report_after_ns = _ns(changed['command_timeout'])
+        if 'wait_for_command' in changed:
+            k.hold_until_command = changed['wait_for_command']
+        if 'pause_at' in changed:
+            k.pause_at_ns = _pause_ns(changed['pause_at'])
+        k.reanchor(time.monotonic_ns())
+        if self.pending and not k.paused(self.core.time_ns) and self.mode == 'lockstep':
+            self.pending = False
+            self._step_and_publish()
         self.get_logger().info(f'parameters changed: {changed}')
 
     def _make_rt_timer(self) -> None:
@@ -199,90 +220,67 @@ class SimulatorNode(Node):
     # ------------------------------------------------------------------ stepping
     @property
     def mode(self) -> str:
-        return self.params['timing_mode']
-
-    def free_running(self) -> bool:
-        return self.mode == 'as_fast_as_possible' and not self.paused
-
-    def _real_time_paced(self) -> bool:
-        return self.mode == 'real_time' or (self.mode == 'lockstep' and self.timed_out)
+        return self.keeper.mode
 
     @property
     def paused(self) -> bool:
-        pause_at = self.params['pause_at']
-        return pause_at >= 0 and self.core.time_ns >= round(pause_at * 1e9)
+        return self.keeper.paused(self.core.time_ns)
 
-    def advance(self) -> bool:
-        """One control period, unless paused; True if time moved."""
-        if self.paused:
-            return False
+    def _step_and_publish(self) -> None:
+        """One control period with the held command, then publish the new state."""
         was_diverged = self.core.diverged
         self.core.advance()
         if self.core.diverged and not was_diverged:
             self.diag.problem('diverged', self.core.diverged, 'ERROR')
-        return True
-
-    def _lockstep_advance(self) -> None:
-        self.pending_answer = not self.advance()
-        if not self.pending_answer:
-            self.publish_state()
+        self.publish_state(new_state=True)
 
     def _on_rt_tick(self) -> None:
-        if not self._real_time_paced():
-            return
-        now = time.monotonic_ns()
-        if self.anchor is None:
-            self.anchor = (now, self.core.time_ns)
-        target = self.anchor[1] + (now - self.anchor[0]) * self.params['real_time_factor']
-        period = self.core.period_ns
-        moved = False
-        for _ in range(5):
-            if self.core.time_ns + period > target or not self.advance():
-                break
-            moved = True
-        if self.paused:
-            self.anchor = None
-        elif self.core.time_ns + period <= target:
-            behind = (target - self.core.time_ns) * 1e-9
+        k = self.keeper
+        overruns = k.overruns
+        due = k.periods_due(self.core.time_ns, time.monotonic_ns())
+        if k.overruns > overruns:
+            win = self.window
             self.diag.problem('overrun', f'cannot keep up with real_time_factor '
-                              f"{self.params['real_time_factor']:g}: {behind:.3f} s of "
-                              f'simulated time behind; continuing from here (achieved '
-                              f'{self.achieved_rtf:.2f}x)')
-            self.anchor = (now, self.core.time_ns)
-        if moved:
-            self.publish_state()
-
-    def step_free(self) -> None:
-        """One control period in as_fast_as_possible mode."""
-        if self.advance():
-            self.publish_state()
+                              f'{k.real_time_factor:g}: {k.behind_s:.3f} s of simulated time '
+                              'given up so far; continuing from here at the same pace'
+                              + (f' (achieved {win.real_time_factor:.2f}x)' if win else ''),
+                              simulated_time_given_up=f'{k.behind_s:.3f}')
+        for _ in range(due):
+            if k.paused(self.core.time_ns):
+                k.reanchor(time.monotonic_ns())
+                break
+            k.before_advance(self.core.time_ns)
+            self._step_and_publish()
 
     def _on_command(self, msg: Float64MultiArray) -> None:
         answers = parse_answer_tag(msg.layout.dim[0].label) if msg.layout.dim else None
-        if (self.mode == 'lockstep' and answers is not None
-                and answers != self.core.time_ns):
-            # An answer to an older state (e.g. queued while a restarted controller caught
-            # up): using it would leave two commands in flight and delay control for good.
-            self.stale_commands += 1
-            if self.timed_out:
-                self.timed_out = False  # the controller is back: wait for its next answer
-                self.get_logger().info('effort commands resumed (resynchronising lockstep)')
-            return
         try:
-            self.core.set_command(msg.data)
+            values = validate_command(msg.data, self.n)
         except CommandError as exc:
             self.diag.problem('rejected_command', f'{exc}; keeping the last good command')
             return
-        self.commands += 1
-        self.ever_commanded = True
-        self.last_command_wall = time.monotonic()
+        now = time.monotonic_ns()
+        k = self.keeper
+        waited = k.overdue_s(self.core.time_ns, now)
+        verdict = k.on_command(answers, self.core.time_ns, now)
+        if verdict == STALE:
+            return
+        self.core.command = values
+        self.last_command_wall = now
+        if waited is not None:
+            self.diag.event('controller_back', f'a command for t={self.core.time:.3f} s came '
+                            f'after {waited:.2f} s (wall); the results are unaffected',
+                            waited_wall=f'{waited:.3f}')
         if self.timed_out:
             self.timed_out = False
             self.get_logger().info('effort commands resumed')
-        if self.mode == 'lockstep':
-            self._lockstep_advance()
+        if verdict == ADVANCE:
+            k.after_lockstep_advance()
+            self._step_and_publish()
+        elif self.mode == 'lockstep':
+            self.pending = True  # paused: advance once pause_at moves
 
-    def publish_state(self) -> None:
+    def publish_state(self, new_state: bool = False) -> None:
         view = self.core.joint_view()
         msg = JointState(name=list(view.names), position=view.position,
                          velocity=view.velocity, effort=view.effort)
@@ -292,50 +290,76 @@ class SimulatorNode(Node):
         clock = Clock()
         clock.clock = msg.header.stamp
         self.clock_pub.publish(clock)
-        self.last_publish_wall = time.monotonic()
+        self.keeper.on_published(self.core.time_ns, time.monotonic_ns(), new_state)
 
     def _housekeeping(self) -> None:
-        now = time.monotonic()
-        timeout = self.params['command_timeout']
-        if self.paused:  # no commands are due while paused
-            self.last_command_wall = now
-        elif (timeout > 0 and self.ever_commanded and not self.timed_out
+        now = time.monotonic_ns()
+        k = self.keeper
+        sim = self.core.time_ns
+        waited = k.overdue_s(sim, now)
+        if waited is None:
+            self.wait_reported = None
+        elif self.wait_reported is None or waited - self.wait_reported >= 1.0:
+            self.wait_reported = waited  # once a second of waiting: counts are of waits
+            self.diag.problem('waiting_for_command', f'no command answering the state at '
+                              f't={self.core.time:.3f} s for {waited:.2f} s (wall): simulated '
+                              'time stands still until one comes (lockstep)',
+                              waited_wall=f'{waited:.3f}')
+        timeout = _ns(self.params['command_timeout'])
+        if self.mode == 'real_time' and (k.holding() or self.paused):
+            self.last_command_wall = now  # no commands are due
+        elif (self.mode == 'real_time' and timeout > 0 and k.started and not self.timed_out
                 and now - self.last_command_wall > timeout):
             self.timed_out = True
-            self.anchor = None
             self.core.clear_command()
-            self.diag.problem('command_timeout', f'no valid effort command for {timeout:g} s: '
-                              'torque set to zero until commands return')
-        if (self.mode == 'lockstep' and not self.timed_out and not self.paused
-                and now - self.last_publish_wall > HEARTBEAT):
+            self.diag.problem('command_timeout', f"no valid effort command for "
+                              f"{self.params['command_timeout']:g} s (wall): torque set to "
+                              'zero until commands return (real_time watchdog)')
+        if k.heartbeat_due(sim, now):
             self.publish_state()
-        t0, s0 = self.window
-        if now - t0 >= 1.0:
-            self.achieved_rtf = (self.core.time_ns - s0) * 1e-9 / (now - t0)
-            self.window = (now, self.core.time_ns)
+        win = k.window(sim, now)
+        if win is not None:
+            self.window = win
+            if win.late:
+                self.diag.problem(
+                    'late_periods', f'{win.late} of {win.periods} control periods in the last '
+                    f'{win.wall_s:.1f} s (wall) were integrated before the controller answered '
+                    f'their state: achieved {win.answered_rate:.0f} Hz of '
+                    f"{self.params['publish_rate']:g} Hz (real_time)",
+                    late_fraction=f'{win.late_fraction:.4f}',
+                    achieved_control_rate=f'{win.answered_rate:.1f}')
             self._summarise()
 
     def _summarise(self) -> None:
-        core = self.core
+        core, k, win = self.core, self.keeper, self.window
         if core.diverged:
             level, message = 'ERROR', core.diverged
         elif self.paused:
             level, message = 'OK', f'paused at t={core.time:.3f} s (pause_at)'
+        elif k.holding():
+            level, message = 'OK', 'holding the initial state until the first command'
+        elif not k.started:
+            level, message = 'WARN', 'waiting for the first command (lockstep)'
         elif self.timed_out:
             level, message = 'WARN', 'command timeout: applying zero torque'
+        elif k.overdue_s(core.time_ns, time.monotonic_ns()) is not None:
+            level, message = 'WARN', 'waiting for a command (lockstep: time stands still)'
         else:
             level, message = 'OK', f'running ({self.mode})'
-        self.diag.set(level, message, sim_time=f'{core.time:.3f}', timing_mode=self.mode,
-                      achieved_real_time_factor=f'{self.achieved_rtf:.2f}',
-                      commands_received=self.commands,
-                      stale_commands_ignored=self.stale_commands,
+        self.diag.set(level, message, timing_mode=self.mode,
+                      paused_at='' if not self.paused else f'{core.time:.9f}',
+                      achieved_real_time_factor=f'{win.real_time_factor:.2f}' if win else '0',
+                      commands_received=k.commands, stale_commands_ignored=k.stale,
+                      control_periods=k.periods, late_periods=k.late_periods,
+                      late_waits=k.late_waits, longest_wait_wall=f'{k.longest_wait_s:.3f}',
+                      overruns=k.overruns, simulated_time_given_up=f'{k.behind_s:.3f}',
                       saturated_joints=[n for n, s in zip(core.joint_names, core.saturated)
                                         if s])
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response):
         self.core.reset()
-        self.anchor = None
-        self.publish_state()
+        self.keeper.reanchor(time.monotonic_ns())
+        self.publish_state(new_state=True)
         response.success = True
         response.message = (f'reset to q={self.core.q.tolist()} qd={self.core.qd.tolist()} '
                             f'at t={self.core.time:.3f} s')
@@ -343,18 +367,9 @@ class SimulatorNode(Node):
         return response
 
 
-def _spin(executor, node: SimulatorNode, running) -> None:
-    while running():
-        if node.free_running():
-            executor.spin_once(timeout_sec=0.0)
-            node.step_free()
-        else:
-            executor.spin_once(timeout_sec=0.1)
-
-
 def main(args: list[str] | None = None) -> int:
     return run_node(SimulatorNode, prog='simulator', summary=SUMMARY,
-                    specs=ROBOT_PARAMS + SIM_PARAMS, args=args, spin=_spin)
+                    specs=ROBOT_PARAMS + SIM_PARAMS, args=args)
 
 
 if __name__ == '__main__':

@@ -37,6 +37,7 @@ from arm_sim.params import ROBOT_PARAMS, ParamSpec
 from arm_sim.ros_common import (
     ConfigError,
     Diagnostics,
+    clock_in_namespace,
     declare_parameters,
     on_parameter_changes,
     run_node,
@@ -48,7 +49,8 @@ Plans the arm's motion to each goal_pose (geometry_msgs/PoseStamped: x, y of the
 end-effector target in the base frame; header.frame_id empty or base_frame; z and
 orientation are ignored) from the latest joint_states, and publishes it on
 arm_controller/joint_trajectory (trajectory_msgs/JointTrajectory, positions rad,
-velocities rad/s, accelerations rad/s^2; header.stamp zero = start on arrival) and
+velocities rad/s, accelerations rad/s^2; header.stamp = the simulated time of the joint
+state it was planned from, where the motion starts) and
 planner/path (nav_msgs/Path of the end effector, frame base_frame).
 
 mode regulation: the goal's joint angles as a set point, or a synchronized joint-space
@@ -57,7 +59,10 @@ from where it is to the goal. The predicted joint torques (inverse dynamics of t
 parameters) are checked against effort_limits: too fast a plan is slowed down to the
 fastest duration that fits (feasibility stretch) or refused (feasibility refuse).
 Unreachable or near-singular goals, goals in another frame, non-finite goals and goals
-before any joint state are refused on /diagnostics; nothing is published for them.
+before any joint state are refused on /diagnostics; nothing is published for them. When
+simulated time goes back or jumps during a planned motion (a restarted simulator, a reset),
+the controller drops the motion and the planner reports the goal as interrupted (send it
+again: it is planned from the new state).
 '''
 
 PLANNER_PARAMS: tuple[ParamSpec, ...] = (
@@ -117,9 +122,11 @@ def _duration(seconds: float) -> Duration:
     return Duration(sec=sec, nanosec=nanosec)
 
 
-def trajectory_message(plan: Plan, joint_names) -> JointTrajectory:
-    """JointTrajectory of ``plan`` (header.stamp zero: start on arrival)."""
+def trajectory_message(plan: Plan, joint_names, start_ns: int = 0) -> JointTrajectory:
+    """JointTrajectory of ``plan`` starting at simulated time ``start_ns`` [ns] (its
+    header.stamp; 0 = on arrival)."""
     msg = JointTrajectory(joint_names=list(joint_names))
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(start_ns, 1_000_000_000)
     for t, q, qd, qdd in zip(plan.times, plan.q, plan.qd, plan.qdd):
         msg.points.append(JointTrajectoryPoint(
             positions=q.tolist(), velocities=qd.tolist(), accelerations=qdd.tolist(),
@@ -147,7 +154,7 @@ class PlannerNode(Node):
     """See the module docstring."""
 
     def __init__(self) -> None:
-        super().__init__('planner')
+        super().__init__('planner', cli_args=clock_in_namespace())
         p = declare_parameters(self, ROBOT_PARAMS + PLANNER_PARAMS)
         try:
             self.arm = make_arm(p)
@@ -160,13 +167,16 @@ class PlannerNode(Node):
         self.joint_names = list(p['joint_names'])
         self.limits = np.array(p['effort_limits'], dtype=float)
         self.q: np.ndarray | None = None
+        self.t_ns = 0  # simulated time of self.q
+        self.active: tuple[int, tuple[float, float]] | None = None  # (end ns, goal xy)
         self.plans = 0
         self.traj_pub = self.create_publisher(JointTrajectory,
                                               'arm_controller/joint_trajectory', 10)
         self.path_pub = self.create_publisher(Path, 'planner/path', 10)
         self.create_subscription(JointState, 'joint_states', self._on_joint_state, 10)
         self.create_subscription(PoseStamped, 'goal_pose', self._on_goal, 10)
-        self.diag = Diagnostics(self)
+        self.diag = Diagnostics(self, sim_time=lambda: None if self.q is None
+                                else self.t_ns * 1e-9)
         self.diag.set('OK', 'waiting for joint_states', plans=0)
         self.pending: tuple | None = None  # (plan, wall deadline) awaiting a controller
         self.create_timer(0.02, self._send_pending, clock=steady_clock())
@@ -211,10 +221,29 @@ class PlannerNode(Node):
                 return
             if self.q is None:
                 self.diag.set('OK', 'ready: waiting for goal_pose')
-            self.q = q
+            t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            self._check_jump(t_ns)
+            self.q, self.t_ns = q, t_ns
         except Exception as exc:  # noqa: BLE001 -- never die on a message
             self.diag.problem('internal_error', f'joint_states handling failed: {exc!r}',
                               'ERROR')
+
+    def _check_jump(self, t_ns: int) -> None:
+        """A motion in progress when simulated time goes back or leaps is dropped by the
+        controller: say so (the next goal is planned from the new state)."""
+        if self.q is None or self.active is None:
+            return
+        end, goal = self.active
+        if self.t_ns >= end:
+            self.active = None
+            return
+        if t_ns < self.t_ns or t_ns - self.t_ns > 1_000_000_000:
+            self.active = None
+            self.diag.problem('goal_interrupted', f'goal ({goal[0]:.4f}, {goal[1]:.4f}) m '
+                              f'interrupted: simulated time jumped from '
+                              f'{self.t_ns * 1e-9:.3f} s to {t_ns * 1e-9:.3f} s during its '
+                              'motion, and the controller dropped it; send the goal again to '
+                              'plan it from the new state', goal_x=goal[0], goal_y=goal[1])
 
     def _on_goal(self, msg: PoseStamped) -> None:
         try:
@@ -244,7 +273,8 @@ class PlannerNode(Node):
         except (PlanningError, ValueError) as exc:
             self.diag.problem('goal_refused', f'goal_pose refused: {exc}')
             return
-        self.pending = (plan, time.monotonic() + CONTROLLER_WAIT)
+        self.pending = (plan, time.monotonic() + CONTROLLER_WAIT, self.t_ns,
+                        (float(goal[0]), float(goal[1])))
         self._send_pending()
 
     def _send_pending(self) -> None:
@@ -252,7 +282,7 @@ class PlannerNode(Node):
         before the controller's subscription matches is lost (volatile QoS)."""
         if self.pending is None:
             return
-        plan, deadline = self.pending
+        plan, deadline, start_ns, goal = self.pending
         if self.traj_pub.get_subscription_count() == 0:
             if time.monotonic() > deadline:
                 self.pending = None
@@ -260,7 +290,8 @@ class PlannerNode(Node):
                                   f'to arm_controller/joint_trajectory for {CONTROLLER_WAIT:g} s')
             return
         self.pending = None
-        self.traj_pub.publish(trajectory_message(plan, self.joint_names))
+        self.traj_pub.publish(trajectory_message(plan, self.joint_names, start_ns))
+        self.active = (start_ns + int(round(float(plan.times[-1]) * 1e9)), goal)
         self.path_pub.publish(path_message(plan, self.params['base_frame'],
                                            self.get_clock().now().to_msg()))
         self.plans += 1
@@ -268,6 +299,8 @@ class PlannerNode(Node):
         self.get_logger().info(line)
         self.diag.set('OK', f'last plan: {line}', plans=self.plans,
                       last_plan_messages=' | '.join(plan.messages))
+        self.diag.event('plan_sent', line, start_time=f'{start_ns * 1e-9:.9f}',
+                        duration=f'{float(plan.times[-1]):.9f}', goal_x=goal[0], goal_y=goal[1])
 
 
 def main(args: list[str] | None = None) -> int:

@@ -18,7 +18,8 @@ class ParamSpec:
     ``kind`` is one of ``'double'``, ``'doubles'`` (array), ``'string'``, ``'strings'``,
     ``'int'``, ``'bool'``. ``length`` fixes an array's length; ``minimum``/``maximum``
     bound every number (``strict_min`` makes the minimum exclusive); ``choices`` lists the
-    allowed strings.
+    allowed strings; ``hints`` gives the reason for known refused strings (e.g. a removed
+    mode).
     """
 
     name: str
@@ -32,6 +33,7 @@ class ParamSpec:
     choices: tuple[str, ...] | None = None
     length: int | None = None
     read_only: bool = False
+    hints: tuple[tuple[str, str], ...] = ()  # (refused value, the reason given for it)
 
     def doc(self) -> str:
         """The description with unit, range and mutability, as shown by parameter tools."""
@@ -71,6 +73,9 @@ class ParamSpec:
         if kind == 'string':
             if not isinstance(item, str):
                 return f'{name} must be a string, got {item!r}'
+            hint = dict(self.hints).get(item)
+            if hint:
+                return f'{name}: {hint}'
             if self.choices and item not in self.choices:
                 return f"{name} must be one of {', '.join(self.choices)}; got {item!r}"
             if not self.choices and not item:

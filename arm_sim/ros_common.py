@@ -38,6 +38,20 @@ class ConfigError(Exception):
     """A node's start-up parameters are refused; the message gives every reason."""
 
 
+_user_args: list[str] = []  # the command line run_node was given
+
+
+def clock_in_namespace() -> list[str]:
+    """Node arguments every arm_sim node is created with: ``/clock`` resolves to ``clock`` in
+    the node's namespace, so a suite started with ``-r __ns:=/arm2`` runs on its own
+    simulator's clock (``/arm2/clock``) with no remapping by the user; in the root namespace
+    it is the usual ``/clock``. Node-local remaps beat the command line's, so when the user
+    remaps ``/clock`` themselves (``-r /clock:=...``) none is added and theirs applies."""
+    if any(a.startswith('/clock:=') or a.startswith('clock:=') for a in _user_args):
+        return []
+    return ['--ros-args', '-r', '/clock:=clock']
+
+
 def steady_clock() -> Clock:
     """A wall clock for timers that must run whatever ``use_sim_time`` says."""
     return Clock(clock_type=ClockType.STEADY_TIME)
@@ -115,9 +129,18 @@ def set_parameters_request(values: dict[str, Any]) -> SetParameters.Request:
 
 class Diagnostics:
     """One DiagnosticStatus for a node on ``/diagnostics``: a summary published every
-    second, and rejected input reported at once (throttled per kind, with counts)."""
+    second, and rejected input, faults and notable events at once (problems throttled per
+    kind, every occurrence counted).
 
-    def __init__(self, node: Node, period: float = 1.0) -> None:
+    Every status is stamped with the wall clock (system time), whatever ``use_sim_time``
+    says: diagnostics report *when* something happened to the person or tool watching.
+    The simulated time it happened at is the key ``sim_time`` [s] (from ``sim_time()``,
+    when it returns a value). Immediate reports carry the key ``event`` = their kind, and
+    any further key-values given, so tools read them without parsing the message.
+    """
+
+    def __init__(self, node: Node, period: float = 1.0,
+                 sim_time: Callable[[], float | None] | None = None) -> None:
         self.node = node
         self.pub = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.name = node.get_fully_qualified_name()
@@ -127,6 +150,8 @@ class Diagnostics:
         self.counts: dict[str, int] = {}
         self.last_problem: dict[str, str] = {}
         self.throttle = Throttle(period)
+        self.sim_time = sim_time
+        self.wall = Clock(clock_type=ClockType.SYSTEM_TIME)
         node.create_timer(period, self.publish, clock=steady_clock())
 
     def set(self, level: str, message: str, **values: Any) -> None:
@@ -134,7 +159,7 @@ class Diagnostics:
         self.level, self.message = level, message
         self.values.update(values)
 
-    def problem(self, kind: str, reason: str, level: str = 'WARN') -> None:
+    def problem(self, kind: str, reason: str, level: str = 'WARN', **values: Any) -> None:
         """Report rejected input or a fault now: log + /diagnostics, at most once a second
         per ``kind``; every occurrence is counted."""
         self.counts[kind] = self.counts.get(kind, 0) + 1
@@ -148,22 +173,25 @@ class Diagnostics:
                 log.error(f'{reason}{more}')
             else:
                 log.warning(f'{reason}{more}')
-            self.publish(extra=(level, f'{kind}: {reason}'))
+            self.publish(extra=(level, f'{kind}: {reason}', {'event': kind, **values}))
 
-    def event(self, kind: str, message: str) -> None:
+    def event(self, kind: str, message: str, **values: Any) -> None:
         """Publish a notable event now (level OK, counted), e.g. an accepted trajectory."""
         self.counts[kind] = self.counts.get(kind, 0) + 1
-        self.publish(extra=('OK', f'{kind}: {message}'))
+        self.publish(extra=('OK', f'{kind}: {message}', {'event': kind, **values}))
 
-    def publish(self, extra: tuple[str, str] | None = None) -> None:
-        level, message = extra or (self.level, self.message)
-        kv = [KeyValue(key=k, value=str(v)) for k, v in self.values.items()]
+    def publish(self, extra: tuple[str, str, dict[str, Any]] | None = None) -> None:
+        level, message, own = extra or (self.level, self.message, {})
+        sim = self.sim_time() if self.sim_time else None
+        values = {**({} if sim is None else {'sim_time': f'{sim:.9f}'}), **self.values,
+                  **own}
+        kv = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         kv += [KeyValue(key=f'{k}_count', value=str(v)) for k, v in self.counts.items()]
         kv += [KeyValue(key=f'{k}_last', value=v) for k, v in self.last_problem.items()]
         status = DiagnosticStatus(level=LEVELS[level], name=self.name, message=message,
                                   hardware_id='arm_sim', values=kv)
         msg = DiagnosticArray(status=[status])
-        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.header.stamp = self.wall.now().to_msg()
         self.pub.publish(msg)
 
 
@@ -213,6 +241,7 @@ def run_node(factory: Callable[[], Node], *, prog: str, summary: str,
             sys.stdout = None
         return 0
     stop = []
+    _user_args[:] = argv
     rclpy.init(args=[prog, *argv], signal_handler_options=SignalHandlerOptions.NO)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.append(True))

@@ -121,7 +121,8 @@ def test_command_timeout_sets_torque_to_zero_and_reports(ros, launch):
 
 def test_reset_restores_the_initial_state(ros, launch):
     q0 = [0.3, -0.7]
-    launch('simulator', params={'timing_mode': 'real_time', 'initial_positions': q0})
+    launch('simulator', params={'timing_mode': 'real_time', 'initial_positions': q0,
+                                'wait_for_command': False})
     states = ros.collect(JointState, 'joint_states')
     ros.wait_for(lambda: states and abs(states[-1].position[0] - q0[0]) > 0.2,
                  what='the arm to fall away from q0')
@@ -226,7 +227,99 @@ def test_single_link_geared_model_follows_the_lectures_equation(ros, launch):
 
 def test_real_time_reports_when_it_cannot_keep_up(ros, launch):
     # 1000x real time at 1 ms steps needs a million RK4 steps per second: too many.
-    launch('simulator', params={'timing_mode': 'real_time', 'real_time_factor': 1000.0})
+    launch('simulator', params={'timing_mode': 'real_time', 'real_time_factor': 1000.0,
+                                'wait_for_command': False})
     diags = ros.collect(DiagnosticArray, '/diagnostics')
     ros.wait_for(lambda: any('overrun' in m for m in diag_messages(diags)),
                  what='the overrun report')
+
+
+def diag_values(diags: list, node: str = '/simulator') -> list[dict[str, str]]:
+    return [{kv.key: kv.value for kv in s.values} for d in diags for s in d.status
+            if s.name == node]
+
+
+def test_lockstep_stands_still_for_a_silent_controller_and_reports_the_wait(ros, launch):
+    launch('simulator', params={'timing_mode': 'lockstep', 'command_timeout': 0.3})
+    states = ros.collect(JointState, 'joint_states')
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
+    ros.wait_for(lambda: states, what='first joint state')
+    for k in range(1, 4):  # three periods under a torque, then silence
+        pub.publish(command([8.0, 1.0]))
+        ros.wait_for(lambda: stamp(states[-1]) >= 0.01 * k - 1e-9, what=f'step {k}')
+    ros.wait_for(lambda: [v for v in diag_values(diags)
+                          if v.get('event') == 'waiting_for_command'
+                          and float(v['waited_wall']) > 0.3],
+                 what='the wait reported with the wall time waited')
+    n = len(states)
+    ros.wait_for(lambda: len(states) > n + 2, what='re-sent states while waiting')
+    assert {stamp(m) for m in states[n - 1:]} == {stamp(states[n - 1])}, 'time stood still'
+    assert stamp(states[-1]) == pytest.approx(0.03)
+    assert all(m.effort == pytest.approx([8.0, 1.0]) for m in states[1:]), (
+        'never zero torque: the last command stays applied')
+    assert len({tuple(m.position) for m in states[n - 1:]}) == 1, 'the state is re-sent as is'
+    pub.publish(command([8.0, 1.0]))
+    ros.wait_for(lambda: stamp(states[-1]) >= 0.04 - 1e-9, what='time to move on again')
+    ros.wait_for(lambda: any(v.get('event') == 'controller_back' for v in diag_values(diags)),
+                 what='the return reported')
+
+
+def test_lockstep_ignores_answers_to_other_states(ros, launch):
+    from std_msgs.msg import MultiArrayDimension
+
+    from arm_dynamics.timing import answer_tag
+    launch('simulator', params={'timing_mode': 'lockstep'})
+    states = ros.collect(JointState, 'joint_states')
+    pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
+    ros.wait_for(lambda: states, what='first joint state')
+
+    def tagged(t_ns: int, tau) -> Float64MultiArray:
+        msg = command(tau)
+        msg.layout.dim = [MultiArrayDimension(label=answer_tag(t_ns), size=2, stride=2)]
+        return msg
+
+    pub.publish(tagged(0, [1.0, 0.0]))
+    ros.wait_for(lambda: stamp(states[-1]) >= 0.01 - 1e-9, what='the answer to t=0')
+    pub.publish(tagged(0, [50.0, 0.0]))  # a late duplicate answer to t=0: stale
+    pub.publish(tagged(10_000_000, [2.0, 0.0]))
+    ros.wait_for(lambda: stamp(states[-1]) >= 0.02 - 1e-9, what='the answer to t=0.01')
+    assert states[-1].effort == pytest.approx([2.0, 0.0])
+    assert max(stamp(m) for m in states) == pytest.approx(0.02), 'one period per answer'
+
+
+def test_real_time_holds_the_initial_state_until_the_first_command(ros, launch):
+    q0 = [0.3, -0.7]
+    launch('simulator', params={'timing_mode': 'real_time', 'initial_positions': q0})
+    states = ros.collect(JointState, 'joint_states')
+    pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
+    ros.wait_for(lambda: len(states) >= 3, what='three states while holding')
+    assert {stamp(m) for m in states} == {0.0}, 'time stands at its start'
+    assert all(m.position == pytest.approx(q0, abs=0) for m in states), 'no integration'
+    tau = ARM.gravity_vector(np.array(q0))  # holds the arm where it is
+    pub.publish(command(tau))
+    ros.wait_for(lambda: stamp(states[-1]) > 0.1, what='time to run after the command')
+
+
+def test_real_time_counts_periods_the_controller_did_not_answer(ros, launch):
+    launch('simulator', params={'timing_mode': 'real_time', 'command_timeout': 0.0})
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    states = ros.collect(JointState, 'joint_states')
+    pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
+    ros.wait_for(lambda: states, what='first joint state')
+    pub.publish(command([0.0, 0.0]))  # one command, then nothing: every period is late
+    report = ros.wait_for(lambda: [v for v in diag_values(diags)
+                                   if v.get('event') == 'late_periods'],
+                          what='the late periods reported')[0]
+    assert float(report['late_fraction']) > 0.5
+    assert float(report['achieved_control_rate']) < 50.0
+
+
+def test_removed_timing_mode_is_refused_with_the_reason(tmp_path):
+    from arm_sim.launcher import NodeProcess
+    proc = NodeProcess('simulator', params={'timing_mode': 'as_fast_as_possible'},
+                       log_path=tmp_path / 'sim.log', domain_id=0)
+    assert proc.proc.wait(30) == 2
+    out = proc.output()
+    assert 'as_fast_as_possible was removed' in out and 'use lockstep' in out
+    assert 'Traceback' not in out

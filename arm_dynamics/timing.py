@@ -1,0 +1,268 @@
+"""When simulated time may advance: the simulator's timing modes and the lockstep protocol.
+
+Pure and ROS-free: the ``simulator`` node feeds :class:`Timekeeper` the commands it receives,
+the states it publishes and the wall clock, and does what it answers. Tests drive it with a
+fake clock.
+
+The rule (README, "Time"): simulated time is the only time that changes the physics, the
+control or a reported figure; the wall clock only decides when to *report* that something is
+late or missing (and, in ``real_time``, how fast simulated time is paced).
+
+Timing modes (:data:`TIMING_MODES`):
+
+* ``lockstep`` -- the simulator advances one control period only on a valid command for the
+  current state. A command from arm_sim's controller names the state it answers (see
+  :func:`answer_tag`); an answer to any other state is stale and ignored. An untagged
+  command (e.g. ros2_control's ForwardCommandController) counts as the answer to the
+  current state. While no answer comes, time stands still: the current state is re-sent
+  every :data:`HEARTBEAT_NS` of wall time (so a late, restarted or stalled controller gets
+  it) and a wait longer than ``report_after_ns`` is reported with the wall time waited.
+  Nothing that the wall clock does changes the recorded states.
+* ``real_time`` -- simulated time follows the wall clock times ``real_time_factor``, one
+  published state per control period. Until the first valid command (``hold_until_command``)
+  the initial state is held and time stands at its start. A period whose state the
+  controller did not answer before the period ended is *late*; late periods are counted
+  and reported with the achieved control rate.
+
+``as_fast_as_possible`` was removed: free-running steps outrun any external controller (the
+arm diverged with the shipped one); ``lockstep`` runs as fast as the closed loop allows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+TIMING_MODES = ('real_time', 'lockstep')
+#: Modes that are refused, with the reason.
+REMOVED_MODES = {
+    'as_fast_as_possible': 'as_fast_as_possible was removed: free-running steps outrun any '
+                           'external controller (the arm diverged); use lockstep (as fast as '
+                           'the closed loop runs, deterministic) or real_time',
+}
+HEARTBEAT_NS = 200_000_000  # wall: how often a state nobody answered is re-sent
+MAX_CATCH_UP = 20  # real_time: periods stepped in one wake-up before it counts as an overrun
+
+#: Lockstep protocol: a command may name the joint state it answers in
+#: ``layout.dim[0].label`` as ``joint_states@<sec>.<nanosec>`` (arm_sim's controller does).
+ANSWER_TAG = 'joint_states@'
+
+
+def answer_tag(time_ns: int) -> str:
+    """The label naming the state stamped ``time_ns`` [ns] that a command answers."""
+    sec, nsec = divmod(time_ns, 1_000_000_000)
+    return f'{ANSWER_TAG}{sec}.{nsec:09d}'
+
+
+def parse_answer_tag(label: str) -> int | None:
+    """The stamp [ns] named by :func:`answer_tag`, or None for any other label."""
+    if not label.startswith(ANSWER_TAG):
+        return None
+    sec, _, nsec = label[len(ANSWER_TAG):].partition('.')
+    if not (sec.isdigit() and nsec.isdigit() and len(nsec) == 9):
+        return None
+    return int(sec) * 1_000_000_000 + int(nsec)
+
+
+#: :meth:`Timekeeper.on_command` verdicts.
+ADVANCE = 'advance'  # hold the command and advance one period now (lockstep)
+HOLD = 'hold'  # hold the command; time may not move yet (lockstep, paused)
+APPLY = 'apply'  # hold the command; time moves on its own schedule (real_time)
+STALE = 'stale'  # ignore: it answers another state
+
+
+@dataclass
+class Window:
+    """Figures of one reporting window (about 1 s of wall time)."""
+
+    wall_s: float
+    sim_s: float
+    periods: int
+    late: int
+
+    @property
+    def real_time_factor(self) -> float:
+        """Simulated seconds per wall second."""
+        return self.sim_s / self.wall_s if self.wall_s > 0 else 0.0
+
+    @property
+    def late_fraction(self) -> float:
+        return self.late / self.periods if self.periods else 0.0
+
+    @property
+    def answered_rate(self) -> float:
+        """Control periods answered in time per wall second [Hz]."""
+        return (self.periods - self.late) / self.wall_s if self.wall_s > 0 else 0.0
+
+
+class Timekeeper:
+    """Decides when simulated time advances; counts what was late.
+
+    Parameters
+    ----------
+    mode : one of :data:`TIMING_MODES`.
+    period_ns : int, ns > 0 -- the control period (one published state each).
+    real_time_factor : > 0 -- real_time: simulated seconds per wall second.
+    hold_until_command : real_time: hold the initial state until the first valid command.
+    report_after_ns : int, ns >= 0 -- lockstep: a wait for an answer longer than this (wall)
+        is reported; 0 = never.
+
+    All times are integer nanoseconds; ``wall_ns`` is any monotonic clock.
+    """
+
+    def __init__(self, *, mode: str, period_ns: int, real_time_factor: float = 1.0,
+                 hold_until_command: bool = True, report_after_ns: int = 500_000_000) -> None:
+        if mode not in TIMING_MODES:
+            raise ValueError(REMOVED_MODES.get(
+                mode, f"timing mode must be one of {', '.join(TIMING_MODES)}; got {mode!r}"))
+        if period_ns <= 0:
+            raise ValueError(f'period_ns must be > 0, got {period_ns}')
+        if not real_time_factor > 0:
+            raise ValueError(f'real_time_factor must be > 0, got {real_time_factor}')
+        self.mode = mode
+        self.period_ns = period_ns
+        self.real_time_factor = real_time_factor
+        self.hold_until_command = hold_until_command
+        self.report_after_ns = report_after_ns
+        self.pause_at_ns: int | None = None
+        self.started = False  # a valid command has arrived (real_time starts pacing then)
+        self.anchor: tuple[int, int] | None = None  # (wall ns, sim ns) of real-time pacing
+        self.last_publish_ns: int | None = None
+        self.waiting_since: int | None = None  # lockstep: wall ns the current state went out
+        self.answered = False  # lockstep: the current state has its command
+        self.answered_stamp: int | None = None  # real_time: latest state answered [sim ns]
+        self.fresh = False  # real_time: an untagged command came since the last period
+        self.tagged = False  # real_time: the controller names the states it answers
+        # counters (since start)
+        self.commands = 0
+        self.stale = 0
+        self.periods = 0
+        self.late_periods = 0
+        self.overruns = 0
+        self.behind_s = 0.0  # real_time: simulated time given up by overruns
+        self.late_waits = 0  # lockstep: waits longer than report_after_ns
+        self.longest_wait_s = 0.0
+        self._win = (None, 0, 0, 0)  # (wall ns, sim ns, periods, late) at window start
+
+    # ------------------------------------------------------------------ state
+    def set_mode(self, mode: str) -> None:
+        if mode not in TIMING_MODES:
+            raise ValueError(REMOVED_MODES.get(mode, f'unknown timing mode {mode!r}'))
+        self.mode = mode
+        self.anchor = None
+
+    def paused(self, sim_ns: int) -> bool:
+        """Has simulated time reached ``pause_at``?"""
+        return self.pause_at_ns is not None and sim_ns >= self.pause_at_ns
+
+    def holding(self) -> bool:
+        """real_time: the initial state is held until the first command."""
+        return self.mode == 'real_time' and self.hold_until_command and not self.started
+
+    def reanchor(self, wall_ns: int) -> None:
+        """Restart real-time pacing, and a lockstep wait, from now (after a pause, a reset or
+        a parameter change): time spent paused is not late."""
+        self.anchor = None
+        if self.waiting_since is not None:
+            self.waiting_since = wall_ns
+
+    # ------------------------------------------------------------------ events
+    def on_published(self, sim_ns: int, wall_ns: int, new_state: bool) -> None:
+        """The node published the state at ``sim_ns`` (``new_state``: time moved or the
+        state changed, not a re-send)."""
+        self.last_publish_ns = wall_ns
+        if new_state:
+            self.waiting_since = wall_ns
+            self.answered = False
+
+    def on_command(self, answers: int | None, sim_ns: int, wall_ns: int) -> str:
+        """A valid command arrived, answering the state stamped ``answers`` [ns] (None:
+        untagged). Returns :data:`ADVANCE`, :data:`HOLD`, :data:`APPLY` or :data:`STALE`."""
+        if self.mode == 'lockstep':
+            if answers is not None and answers != sim_ns:
+                self.stale += 1
+                return STALE
+            self.commands += 1
+            self.started = True
+            if not self.answered and self.waiting_since is not None:
+                waited = (wall_ns - self.waiting_since) * 1e-9
+                self.longest_wait_s = max(self.longest_wait_s, waited)
+                if self.report_after_ns and waited * 1e9 > self.report_after_ns:
+                    self.late_waits += 1
+            self.answered = True
+            return HOLD if self.paused(sim_ns) else ADVANCE
+        self.commands += 1
+        if answers is not None:
+            self.tagged = True
+            if answers > sim_ns:
+                self.stale += 1  # names a state not published yet: another simulator's
+                return STALE
+            self.answered_stamp = max(answers, self.answered_stamp or answers)
+        self.fresh = True
+        if not self.started:
+            self.started = True
+            self.anchor = None
+        return APPLY
+
+    def periods_due(self, sim_ns: int, wall_ns: int) -> int:
+        """real_time: how many control periods to advance now (publishing each)."""
+        if self.mode != 'real_time' or self.holding() or self.paused(sim_ns):
+            return 0
+        if self.anchor is None:
+            self.anchor = (wall_ns, sim_ns)
+            return 0
+        target = self.anchor[1] + (wall_ns - self.anchor[0]) * self.real_time_factor
+        due = int((target - sim_ns) // self.period_ns)
+        if due > MAX_CATCH_UP:
+            # Too far behind to catch up: give the lost simulated time up and go on from
+            # here, at the same pace.
+            self.overruns += 1
+            self.behind_s += (due - MAX_CATCH_UP) * self.period_ns * 1e-9
+            due = MAX_CATCH_UP
+            self.anchor = (wall_ns, sim_ns + due * self.period_ns)
+        return max(due, 0)
+
+    def before_advance(self, sim_ns: int) -> bool:
+        """real_time: the period starting at ``sim_ns`` is about to be integrated; returns
+        True (and counts it) if the controller did not answer that state in time."""
+        if self.tagged:
+            late = self.answered_stamp is None or self.answered_stamp < sim_ns
+        else:
+            late = not self.fresh
+        self.fresh = False
+        self.periods += 1
+        self.late_periods += late
+        return late
+
+    def after_lockstep_advance(self) -> None:
+        self.periods += 1
+
+    # ------------------------------------------------------------------ wall-clock checks
+    def heartbeat_due(self, sim_ns: int, wall_ns: int) -> bool:
+        """Should the current state be re-sent now? (lockstep while unanswered, real_time
+        while holding the initial state; never while paused)."""
+        if self.paused(sim_ns) or self.last_publish_ns is None:
+            return False
+        waiting = (self.mode == 'lockstep' and not self.answered) or self.holding()
+        return waiting and wall_ns - self.last_publish_ns >= HEARTBEAT_NS
+
+    def overdue_s(self, sim_ns: int, wall_ns: int) -> float | None:
+        """lockstep: wall seconds waited for the current state's answer, once that exceeds
+        ``report_after_ns`` (None otherwise, while paused, and before the first command:
+        no controller has come yet)."""
+        if (self.mode != 'lockstep' or self.answered or self.waiting_since is None
+                or not self.report_after_ns or self.paused(sim_ns) or not self.started):
+            return None
+        waited = wall_ns - self.waiting_since
+        return waited * 1e-9 if waited > self.report_after_ns else None
+
+    def window(self, sim_ns: int, wall_ns: int, length_ns: int = 1_000_000_000) -> Window | None:
+        """Close the current reporting window if it is ``length_ns`` (wall) old."""
+        w0, s0, p0, l0 = self._win
+        if w0 is None:
+            self._win = (wall_ns, sim_ns, self.periods, self.late_periods)
+            return None
+        if wall_ns - w0 < length_ns:
+            return None
+        self._win = (wall_ns, sim_ns, self.periods, self.late_periods)
+        return Window((wall_ns - w0) * 1e-9, (sim_ns - s0) * 1e-9, self.periods - p0,
+                      self.late_periods - l0)

@@ -1,0 +1,144 @@
+"""The timing modes and the lockstep protocol (:mod:`arm_dynamics.timing`) on a fake clock."""
+
+from __future__ import annotations
+
+import pytest
+
+from arm_dynamics.timing import (
+    ADVANCE,
+    APPLY,
+    HEARTBEAT_NS,
+    HOLD,
+    MAX_CATCH_UP,
+    STALE,
+    Timekeeper,
+    answer_tag,
+    parse_answer_tag,
+)
+
+MS = 1_000_000
+P = 10 * MS  # control period
+
+
+def lockstep(**kw) -> Timekeeper:
+    return Timekeeper(mode='lockstep', period_ns=P, report_after_ns=500 * MS, **kw)
+
+
+def test_answer_tags_round_trip_and_other_labels_are_untagged():
+    for t in (0, 10 * MS, 123_456_789_012):
+        assert parse_answer_tag(answer_tag(t)) == t
+    for label in ('', 'x', 'joint_states@1.5', 'joint_states@a.000000000'):
+        assert parse_answer_tag(label) is None
+
+
+def test_lockstep_advances_only_on_an_answer_to_the_current_state():
+    k = lockstep()
+    k.on_published(0, wall_ns=0, new_state=True)
+    assert k.on_command(answers=0, sim_ns=0, wall_ns=MS) == ADVANCE
+    k.on_published(P, wall_ns=2 * MS, new_state=True)
+    assert k.on_command(answers=0, sim_ns=P, wall_ns=3 * MS) == STALE, 'an old answer'
+    assert k.on_command(answers=2 * P, sim_ns=P, wall_ns=3 * MS) == STALE, 'a future one'
+    assert k.on_command(answers=None, sim_ns=P, wall_ns=3 * MS) == ADVANCE, 'untagged'
+    assert k.stale == 2 and k.commands == 2
+
+
+def test_lockstep_holds_an_answer_while_paused():
+    k = lockstep()
+    k.pause_at_ns = P
+    k.on_published(P, wall_ns=0, new_state=True)
+    assert k.on_command(answers=P, sim_ns=P, wall_ns=MS) == HOLD
+    assert not k.heartbeat_due(P, wall_ns=10 * HEARTBEAT_NS), 'no re-sends while paused'
+
+
+def test_lockstep_wait_is_reported_after_the_threshold_and_never_moves_time():
+    k = lockstep()
+    k.on_published(0, wall_ns=0, new_state=True)
+    k.on_command(answers=0, sim_ns=0, wall_ns=MS)  # the controller is there
+    k.on_published(P, wall_ns=2 * MS, new_state=True)
+    assert k.overdue_s(P, wall_ns=400 * MS) is None
+    assert not k.heartbeat_due(P, wall_ns=100 * MS)
+    assert k.heartbeat_due(P, wall_ns=2 * MS + HEARTBEAT_NS), 're-send the unanswered state'
+    k.on_published(P, wall_ns=2 * MS + HEARTBEAT_NS, new_state=False)
+    assert not k.heartbeat_due(P, wall_ns=2 * MS + HEARTBEAT_NS + MS)
+    assert k.overdue_s(P, wall_ns=802 * MS) == pytest.approx(0.8)
+    assert k.periods_due(P, wall_ns=10_000 * MS) == 0, 'lockstep never paces on the wall'
+    assert k.on_command(answers=P, sim_ns=P, wall_ns=2002 * MS) == ADVANCE
+    assert k.late_waits == 1 and k.longest_wait_s == pytest.approx(2.0)
+    assert k.overdue_s(P, wall_ns=3000 * MS) is None, 'answered'
+
+
+def test_lockstep_wait_before_the_first_command_is_not_late():
+    k = lockstep()
+    k.on_published(0, wall_ns=0, new_state=True)
+    assert k.overdue_s(0, wall_ns=5000 * MS) is None
+    assert k.heartbeat_due(0, wall_ns=HEARTBEAT_NS)
+
+
+def test_time_spent_paused_is_not_a_late_wait():
+    k = lockstep()
+    k.on_published(0, wall_ns=0, new_state=True)
+    k.on_command(answers=0, sim_ns=0, wall_ns=MS)
+    k.pause_at_ns = P
+    k.on_published(P, wall_ns=2 * MS, new_state=True)
+    assert k.overdue_s(P, wall_ns=5000 * MS) is None
+    k.pause_at_ns = None
+    k.reanchor(wall_ns=5000 * MS)
+    assert k.overdue_s(P, wall_ns=5100 * MS) is None
+
+
+def test_real_time_holds_until_the_first_command_then_paces_on_the_wall_clock():
+    k = Timekeeper(mode='real_time', period_ns=P)
+    assert k.holding() and k.periods_due(0, wall_ns=10_000 * MS) == 0
+    k.on_published(0, wall_ns=0, new_state=True)
+    assert k.heartbeat_due(0, wall_ns=HEARTBEAT_NS), 'the held state is re-sent'
+    assert k.on_command(answers=None, sim_ns=0, wall_ns=1000 * MS) == APPLY
+    assert not k.holding()
+    assert k.periods_due(0, wall_ns=1000 * MS) == 0  # anchors here
+    assert k.periods_due(0, wall_ns=1035 * MS) == 3
+    fast = Timekeeper(mode='real_time', period_ns=P, real_time_factor=2.0,
+                      hold_until_command=False)
+    fast.periods_due(0, wall_ns=0)
+    assert fast.periods_due(0, wall_ns=50 * MS) == 10
+
+
+def test_real_time_overrun_gives_up_time_beyond_the_catch_up_limit():
+    k = Timekeeper(mode='real_time', period_ns=P, hold_until_command=False)
+    k.periods_due(0, wall_ns=0)
+    assert k.periods_due(0, wall_ns=1000 * MS) == MAX_CATCH_UP
+    assert k.overruns == 1
+    assert k.behind_s == pytest.approx((100 - MAX_CATCH_UP) * 0.01)
+    sim = MAX_CATCH_UP * P
+    assert k.periods_due(sim, wall_ns=1010 * MS) == 1, 'same pace from the new anchor'
+
+
+def test_real_time_late_periods_with_tagged_answers():
+    k = Timekeeper(mode='real_time', period_ns=P)
+    k.on_command(answers=0, sim_ns=0, wall_ns=0)
+    assert not k.before_advance(0), 'state 0 was answered'
+    assert k.before_advance(P), 'state P was not answered before its period ended'
+    k.on_command(answers=P, sim_ns=2 * P, wall_ns=30 * MS)  # an answer to an older state
+    assert k.before_advance(2 * P)
+    k.on_command(answers=3 * P, sim_ns=3 * P, wall_ns=40 * MS)
+    assert not k.before_advance(3 * P)
+    assert (k.periods, k.late_periods) == (4, 2)
+    assert k.window(4 * P, wall_ns=0) is None  # opens the window
+    w = k.window(4 * P, wall_ns=1000 * MS)
+    assert w is not None and w.periods == 0 and w.wall_s == pytest.approx(1.0)
+
+
+def test_real_time_late_periods_with_untagged_commands():
+    k = Timekeeper(mode='real_time', period_ns=P)
+    k.on_command(answers=None, sim_ns=0, wall_ns=0)
+    assert not k.before_advance(0)
+    assert k.before_advance(P), 'no command since the last period'
+    k.on_command(answers=None, sim_ns=2 * P, wall_ns=0)
+    assert not k.before_advance(2 * P)
+
+
+def test_removed_and_unknown_modes_are_refused_with_the_reason():
+    with pytest.raises(ValueError, match='as_fast_as_possible was removed.*lockstep'):
+        Timekeeper(mode='as_fast_as_possible', period_ns=P)
+    with pytest.raises(ValueError, match="got 'warp'"):
+        Timekeeper(mode='warp', period_ns=P)
+    with pytest.raises(ValueError, match='period_ns'):
+        Timekeeper(mode='lockstep', period_ns=0)
