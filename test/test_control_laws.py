@@ -109,7 +109,7 @@ def test_controller_holds_the_first_measured_position_until_a_trajectory_arrives
                                                              LIMITS))
     step = core.update(5.0, Q0, np.zeros(2))
     assert step.q_des.tolist() == Q0.tolist() and core.holding_start
-    step = core.update(5.5, Q0 + 0.1, np.zeros(2))
+    step = core.update(5.5, Q0 + 0.05, np.zeros(2))
     assert step.q_des.tolist() == Q0.tolist()
 
 
