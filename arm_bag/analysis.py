@@ -1,10 +1,17 @@
 """Analyse a recorded run: split it into segments and compute their metrics (pure).
 
-A new segment starts at every message on ``arm_controller/joint_trajectory`` (receive
-time); joint states received before the first trajectory are not analysed. Per segment:
+Everything is on simulated time (header stamps), so the figures depend only on the recorded
+states, never on when the recorder received them. A joint state that comes again with the
+same stamp (lockstep re-sends an unanswered state) counts once. A new segment starts at
+each ``arm_controller/joint_trajectory`` message's start: its ``header.stamp`` (arm_sim's
+planner stamps the simulated time it planned from), or, for a trajectory stamped zero ("on
+arrival"), the first joint state received after it (a warning says so: that start depends
+on the recording's latency). Joint states before the first trajectory are not analysed.
+Per segment:
 
-* ``mode``: ``straight_line`` if the segment's ``planner/path`` poses (the path received
-  closest to the trajectory, within 1 s before it or any time before the next one) -- or,
+* ``mode``: ``straight_line`` if the segment's ``planner/path`` poses (the path stamped
+  like the trajectory, else the one received closest to it, within 1 s before it or any
+  time before the next one) -- or,
   with no path, the forward kinematics of the trajectory points -- are >= 3 points lying
   within 1e-6 m of the segment from the first to the last; else ``regulation``.
 * tracking error = joint position minus reference: the ``arm_controller/reference``
@@ -161,6 +168,17 @@ def _robot(bag: BagData, warnings: list[str], joints: int) -> tuple[str, list, l
     return source, lengths, limits
 
 
+def _unique_states(js: JointStates) -> JointStates:
+    """``js`` without the states that repeat the previous one's stamp (re-sent states)."""
+    if len(js) < 2:
+        return js
+    keep = np.r_[True, np.diff(js.stamp) != 0]
+    if keep.all():
+        return js
+    return JointStates(js.topic, js.names, js.stamp[keep], js.log_time[keep],
+                       js.position[keep], js.velocity[keep], js.effort[keep])
+
+
 def _times(js: JointStates, warnings: list[str]) -> np.ndarray:
     """Sample times [ns]: header stamps if they increase, else receive times."""
     st = js.stamp
@@ -174,6 +192,8 @@ def analyze_data(bag: BagData) -> Report:
     """Analyse what :func:`arm_bag.reader.read_bag` returned."""
     warnings = list(bag.warnings)
     js = bag.joint_states
+    if js is not None:
+        js = _unique_states(js)
     if js is None or len(js) == 0:
         raise NothingToAnalyse(f'{bag.path}: no joint_states messages (topics: '
                                + (', '.join(sorted(bag.topics)) or 'none') + ')')
@@ -199,7 +219,7 @@ def analyze_data(bag: BagData) -> Report:
         segments.append(_segment(0, None, None, slice(0, len(js)), t, js, ref, arm, limits,
                                  bag, warnings))
     else:
-        bounds = np.searchsorted(js.log_time, [tr.log_time for tr in trajs]).tolist()
+        bounds = _segment_starts(trajs, js, t_ns, warnings)
         bounds.append(len(js))
         if bounds[0] > 0:
             warnings.append(f'{bounds[0]} joint states before the first trajectory not '
@@ -217,6 +237,26 @@ def analyze_data(bag: BagData) -> Report:
                   message_counts={k: v[1] for k, v in sorted(bag.topics.items())},
                   truncated=bag.truncated, warnings=warnings, run=_clean(run),
                   segments=segments)
+
+
+def _segment_starts(trajs, js: JointStates, t_ns: np.ndarray, warnings: list[str]) -> list[int]:
+    """Index of the first joint state of each trajectory's segment: the first state at or
+    after its start stamp (simulated time), or, unstamped, the first received after it."""
+    on_stamps = t_ns is js.stamp
+    starts = []
+    unstamped = 0
+    for tr in trajs:
+        stamp = tr.trajectory.stamp
+        if stamp and on_stamps:
+            starts.append(int(np.searchsorted(js.stamp, stamp)))
+        else:
+            unstamped += 1
+            starts.append(int(np.searchsorted(js.log_time, tr.log_time)))
+    if unstamped:
+        warnings.append(f'{unstamped} trajectories without a header stamp (or joint states '
+                        'without increasing stamps): their segments start at the first joint '
+                        'state received after them, which depends on recording latency')
+    return starts
 
 
 def _reference(bag: BagData, js: JointStates, warnings: list[str]) -> np.ndarray | None:
@@ -251,7 +291,14 @@ def _torque(t, effort, velocity, limits, sl) -> dict:
             'saturated_fraction': _list(stats['saturated_fraction']), 'energy': energy}
 
 
-def _path_for(bag: BagData, log_time: int, nxt: int | None) -> np.ndarray | None:
+def _path_for(bag: BagData, log_time: int, nxt: int | None,
+              stamp: int = 0) -> np.ndarray | None:
+    """The trajectory's planned path: the one stamped like it (none if paths are stamped
+    but none is stamped so), else the one received closest to it (within PATH_LEAD
+    before it, or any time before the next trajectory)."""
+    if stamp and any(p.stamp for p in bag.paths):  # stamped paths: only its own
+        same = [p for p in bag.paths if p.stamp == stamp]
+        return same[-1].xy if same else None
     best = None
     for p in bag.paths:
         if p.log_time < log_time - PATH_LEAD or (nxt is not None and p.log_time >= nxt):
@@ -274,7 +321,7 @@ def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
         traj = tr.trajectory
         set_point = traj.positions[-1]
         seg.set_point = _list(set_point)
-        path = _path_for(bag, tr.log_time, nxt)
+        path = _path_for(bag, tr.log_time, nxt, traj.stamp)
         if path is not None and len(path):
             points = path
         elif arm is not None:

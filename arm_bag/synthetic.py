@@ -60,17 +60,18 @@ def write_run(w: BagWriter, ch: dict[str, int], t0_log: int, t: np.ndarray,
               q: np.ndarray, qd: np.ndarray, tau: np.ndarray, ref: np.ndarray | None,
               trajectory: tuple[np.ndarray, np.ndarray] | None = None,
               path_xy: np.ndarray | None = None, stamp0: int = 0) -> int:
-    """Write one segment: a trajectory (positions (P, 2), times (P,) s) and path at
-    ``t0_log`` [ns receive time], then a joint state (and reference) per sample of ``t``
-    [s, simulated time from ``stamp0`` ns], received 1 us apart. Returns the next free
+    """Write one segment: a trajectory (positions (P, 2), times (P,) s, stamped ``stamp0``:
+    it starts there) and path at ``t0_log`` [ns receive time], then a joint state (and
+    reference) per sample of ``t`` [s, simulated time from ``stamp0`` ns], received 1 us
+    apart. Returns the next free
     receive time."""
     log = t0_log
     if trajectory is not None:
         w.write(ch['/arm_controller/joint_trajectory'],
-                encode_joint_trajectory(0, NAMES, *trajectory), log)
+                encode_joint_trajectory(stamp0, NAMES, *trajectory), log)
         log += 1000
     if path_xy is not None:
-        w.write(ch['/planner/path'], encode_path(0, path_xy), log)
+        w.write(ch['/planner/path'], encode_path(stamp0, path_xy), log)
         log += 1000
     stamps = stamp0 + np.round(np.asarray(t) * 1e9).astype(np.int64)
     states = joint_state_block(stamps, q, qd, tau)

@@ -188,6 +188,9 @@ class ControllerNode(Node):
             if answer is not None and answer[0] == stamp_ns and np.array_equal(answer[1], q):
                 self.resent += 1  # the same state again: its answer was lost or early
                 self.cmd_pub.publish(answer[2])
+                self.diag.problem('answer_resent', f'the state at t={self.latest[0]:.3f} s '
+                                  'came again (the simulator got no answer to it): the same '
+                                  'command re-sent')
                 return
             self._control(stamp_ns)
 
@@ -253,7 +256,8 @@ class ControllerNode(Node):
                               f"within {self.params['state_timeout']:g} s (wall) of it, so "
                               'the start of the motion is unknown')
         age = now - self.latest_wall
-        if self.latest is not None and not self.stale and age > self.params['state_timeout']:
+        if (self.params['update_on'] == 'timer' and self.latest is not None
+                and not self.stale and age > self.params['state_timeout']):
             self.stale = True
             self.diag.problem('stale_state', f'no joint state for {age:.2f} s: stopped '
                               'commanding until fresh states arrive')

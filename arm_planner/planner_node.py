@@ -14,7 +14,7 @@ import time
 from typing import Any
 
 import numpy as np
-from builtin_interfaces.msg import Duration
+from builtin_interfaces.msg import Duration, Time
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
@@ -51,7 +51,8 @@ orientation are ignored) from the latest joint_states, and publishes it on
 arm_controller/joint_trajectory (trajectory_msgs/JointTrajectory, positions rad,
 velocities rad/s, accelerations rad/s^2; header.stamp = the simulated time of the joint
 state it was planned from, where the motion starts) and
-planner/path (nav_msgs/Path of the end effector, frame base_frame).
+planner/path (nav_msgs/Path of the end effector, frame base_frame, stamped like the
+trajectory).
 
 mode regulation: the goal's joint angles as a set point, or a synchronized joint-space
 profile (regulation_profile). mode straight_line: the end effector moves on the segment
@@ -292,8 +293,9 @@ class PlannerNode(Node):
         self.pending = None
         self.traj_pub.publish(trajectory_message(plan, self.joint_names, start_ns))
         self.active = (start_ns + int(round(float(plan.times[-1]) * 1e9)), goal)
+        sec, nanosec = divmod(start_ns, 1_000_000_000)
         self.path_pub.publish(path_message(plan, self.params['base_frame'],
-                                           self.get_clock().now().to_msg()))
+                                           Time(sec=sec, nanosec=nanosec)))
         self.plans += 1
         line = plan.summary(self.limits)
         self.get_logger().info(line)

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from arm_dynamics.timing import TIMING_MODES
+
 EXIT_ERROR = 1
 EXIT_REFUSED = 3
 EXIT_TIMEOUT = 4
@@ -83,9 +85,9 @@ def cmd_bringup(args: argparse.Namespace) -> int:
         params = {'timing_mode': args.timing_mode} if name == 'simulator' else {}
         if name == 'recorder':
             params = {'output': str(out / 'bag')}
-        remaps = {'/clock': 'clock'} if ns else None
+        # Each node resolves /clock in its own namespace (arm_sim.ros_common).
         procs.append(NodeProcess(name, params_file=config_file(), params=params,
-                                 namespace=ns or None, remaps=remaps, domain_id=domain,
+                                 namespace=ns or None, domain_id=domain,
                                  log_path=out / 'logs' / f'{name}.log'))
     print(f'arm-sim bringup: {", ".join(nodes)} running on ROS domain {domain} '
           f'(namespace {ns or "/"}, simulator {args.timing_mode}); logs in {out}/logs')
@@ -111,7 +113,7 @@ def cmd_bringup(args: argparse.Namespace) -> int:
 
 def cmd_goal(args: argparse.Namespace) -> int:
     """Send one goal to a running suite and report what became of it."""
-    from arm_sim.client import SuiteClient, SuiteError
+    from arm_sim.client import SuiteClient, SuiteError, stamp_of
     from arm_sim.demo import start_pose
     from arm_sim.launcher import config_file
 
@@ -135,12 +137,17 @@ def cmd_goal(args: argparse.Namespace) -> int:
                               'the planner to subscribe goal_pose')
         except SuiteError as exc:
             raise CliError(str(exc), EXIT_TIMEOUT) from None
-        n_traj, n_diag = len(client.trajectories), len(client.diagnostics)
+        n_traj, n_events = len(client.trajectories), len(client.events)
         client.publish_goal(args.x, args.y, args.frame)
 
-        def refusal():
-            return next((m for node, _, m in client.diagnostics[n_diag:]
-                         if node == 'planner' and m.startswith('goal_')), None)
+        def refusal() -> str | None:
+            """Why the goal will not be executed: the planner refused it or could not send
+            it, the controller refused its trajectory, or a time jump interrupted it."""
+            for e in client.events[n_events:]:
+                if ((e.node == 'planner' and e.kind.startswith('goal_'))
+                        or (e.node == 'controller' and e.kind == 'rejected_trajectory')):
+                    return e.message.split(': ', 1)[-1].removeprefix('goal_pose refused: ')
+            return None
 
         try:
             client.spin_until(lambda: len(client.trajectories) > n_traj or refusal(),
@@ -148,17 +155,18 @@ def cmd_goal(args: argparse.Namespace) -> int:
         except SuiteError as exc:
             raise CliError(str(exc), EXIT_TIMEOUT) from None
         if refusal():
-            reason = refusal().split(': ', 1)[-1].removeprefix('goal_pose refused: ')
-            raise CliError(f'refused: {reason}', EXIT_REFUSED)
+            raise CliError(f'refused: {refusal()}', EXIT_REFUSED)
         traj = client.trajectories[-1]
         end = traj.points[-1].time_from_start
         duration = end.sec + end.nanosec * 1e-9
         print(f'planned: {len(traj.points)} point(s), {duration:.2f} s of motion')
         arm, _ = start_pose(config_file())  # link lengths as config/arm.yaml gives them
         goal = np.array([args.x, args.y])
-        t0 = client.sim_time
+        t0 = stamp_of(traj) or client.sim_time  # the motion starts at its stamp
 
         def reached():
+            if refusal():
+                return True
             state = client.states[-1]
             tip = arm.forward_kinematics(np.array(state.position))
             return (client.sim_time >= t0 + duration
@@ -167,6 +175,8 @@ def cmd_goal(args: argparse.Namespace) -> int:
 
         try:
             client.spin_until(reached, args.timeout + duration, 'the arm to reach the goal')
+            if refusal():
+                raise CliError(f'refused: {refusal()}', EXIT_REFUSED)
         except SuiteError:
             tip = arm.forward_kinematics(np.array(client.states[-1].position))
             raise CliError(f'timed out: the tip is at ({tip[0]:.4f}, {tip[1]:.4f}) m, '
@@ -211,9 +221,10 @@ def build_parser() -> argparse.ArgumentParser:
         'bringup', help='start the suite and keep it running (Ctrl-C stops it)',
         description='Start simulator, controller, planner (and recorder) with '
         'config/arm.yaml and wait; drive it with arm-sim goal.')
-    bring.add_argument('--timing-mode', default='real_time',
-                       choices=('real_time', 'lockstep', 'as_fast_as_possible'),
-                       help='simulator timing (default real_time: watchable)')
+    bring.add_argument('--timing-mode', default='real_time', choices=TIMING_MODES,
+                       help='simulator timing: real_time (default: wall-clock speed, for '
+                       'watching and driving by hand) or lockstep (deterministic, as fast as '
+                       'the closed loop runs)')
     bring.add_argument('--namespace', default='', help='namespace for all nodes and topics')
     bring.add_argument('--no-record', dest='record', action='store_false',
                        help='do not start the recorder')

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -18,6 +19,18 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from arm_sim.ros_common import set_parameters_request
+
+
+@dataclass(frozen=True)
+class Event:
+    """An immediate /diagnostics report of a suite node: its kind (key ``event``),
+    level (0 OK, 1 WARN, 2 ERROR), message and key-values."""
+
+    node: str
+    kind: str
+    level: int
+    message: str
+    values: dict[str, str]
 
 
 class SuiteError(Exception):
@@ -43,8 +56,9 @@ class SuiteClient:
         self.states: list[JointState] = []
         self.trajectories: list[JointTrajectory] = []
         self.reference_time = -math.inf  # stamp of the controller's latest answer [s]
-        self.diagnostics: list[tuple[str, str, str]] = []  # (node, level, message)
+        self.diagnostics: list[tuple[str, int, str]] = []  # (node, level, message)
         self.diagnostic_values: list[tuple[str, dict[str, str]]] = []  # (node, key: value)
+        self.events: list[Event] = []  # immediate reports (those with an 'event' key)
         n = self.node
         n.create_subscription(JointState, 'joint_states', self._keep_state, 1000)
         n.create_subscription(JointTrajectory, 'arm_controller/joint_trajectory',
@@ -67,8 +81,22 @@ class SuiteClient:
         for s in msg.status:
             if s.name.startswith(self.ns + '/') and s.name.count('/') == self.ns.count('/') + 1:
                 node = s.name.rsplit('/', 1)[1]
-                self.diagnostics.append((node, s.level, s.message))
-                self.diagnostic_values.append((node, {kv.key: kv.value for kv in s.values}))
+                level = s.level if isinstance(s.level, int) else s.level[0]
+                values = {kv.key: kv.value for kv in s.values}
+                self.diagnostics.append((node, level, s.message))
+                self.diagnostic_values.append((node, values))
+                if 'event' in values:
+                    self.events.append(Event(node, values['event'], level, s.message, values))
+
+    def events_of(self, node: str, *kinds: str, since: int = 0) -> list[Event]:
+        """Immediate reports of ``node`` (of these ``kinds``, if given) from index
+        ``since`` of :attr:`events` on."""
+        return [e for e in self.events[since:]
+                if e.node == node and (not kinds or e.kind in kinds)]
+
+    def latest_values(self, node: str) -> dict[str, str]:
+        """The key-values of ``node``'s latest report (empty if none came)."""
+        return next((v for n, v in reversed(self.diagnostic_values) if n == node), {})
 
     def node_name(self, name: str) -> str:
         return f'{self.ns}/{name}'

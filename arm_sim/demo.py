@@ -9,6 +9,7 @@ same joint states.
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 from dataclasses import dataclass, field
@@ -19,7 +20,7 @@ import yaml
 
 from arm_bag.recorder_node import DEFAULT_TOPICS
 from arm_dynamics import TwoLinkArm
-from arm_sim.client import SuiteClient, SuiteError
+from arm_sim.client import SuiteClient, SuiteError, stamp_of
 from arm_sim.launcher import NodeProcess, config_file
 
 PF = (0.5, 1.2)  # m: the regulation goal
@@ -91,6 +92,7 @@ class Demo:
         self.tasks = scenario(ps, fast, slow)
         self.procs: list[NodeProcess] = []
         self.results: list[TaskResult] = []
+        self.warnings: list[str] = []
 
     def _start(self, name: str, **params) -> None:
         self.procs.append(NodeProcess(
@@ -115,6 +117,9 @@ class Demo:
         client = SuiteClient(self.domain)
         try:
             self._drive(client)
+            self.warnings += suite_warnings(client)
+            for w in self.warnings:
+                self.echo(f'warning: {w}')
         finally:
             client.close()
             codes = {p.name: p.stop(signal.SIGINT) for p in self.procs}
@@ -135,17 +140,20 @@ class Demo:
         c.spin_until(lambda: self._recorded(c, 'joint_states'), wait,
                      'the recorder to record a joint state', self._alive)
         self._start('controller')
-        # The recorder must also be matched with the controller's topics before the first
-        # task: creep through the initial hold until it has recorded them (the recorded
-        # joint states do not depend on where the simulation pauses).
+        # The recorder, and this client, must also be matched with the controller's topics
+        # before the first task (discovery of a new process takes a moment, and what is
+        # published before the match is not delivered): creep through the initial hold
+        # until both have received them (the recorded joint states do not depend on where
+        # the simulation pauses).
+        def matched() -> bool:
+            return c.reference_time > -math.inf and all(self._recorded(c, t) for t in (
+                'effort_controller/commands', 'arm_controller/reference'))
+
         hold = 0.05
-        while not all(self._recorded(c, t) for t in ('effort_controller/commands',
-                                                     'arm_controller/reference')):
+        while not matched():
             try:
                 self._run_to(c, hold, answered=False)
-                c.spin_until(lambda: all(self._recorded(c, t) for t in (
-                    'effort_controller/commands', 'arm_controller/reference')), 1.5,
-                    'the recorder', self._alive)
+                c.spin_until(matched, 1.5, 'the recorder and this client', self._alive)
             except SuiteError:
                 hold = round(hold + 0.05, 2)
                 if hold >= 0.5:
@@ -174,6 +182,11 @@ class Demo:
             pts = c.trajectories[-1].points
             dur = pts[-1].time_from_start.sec + pts[-1].time_from_start.nanosec * 1e-9
             t_start = t_next
+            planned_from = stamp_of(c.trajectories[-1])
+            if abs(planned_from - t_start) > 1e-9:
+                self.warnings.append(f'task {k} was planned from the state at t = '
+                                     f'{planned_from:.3f} s, not the paused one at '
+                                     f'{t_start:.3f} s: this run may not repeat exactly')
             t_next = round((t_next + dur + SETTLE) / PERIOD) * PERIOD
             self.echo(f'[{k}/{len(self.tasks)}] t = {t_start:5.2f} s  {task.label}: '
                       f'{len(pts)} points over {dur:.2f} s')
@@ -196,21 +209,19 @@ class Demo:
                 c.spin_until(lambda: c.reference_time >= t - 1e-9, 5.0,
                              f"the controller's answer at {t:.2f} s", self._alive)
             except SuiteError as exc:  # seen once under load: the answer never reached us
-                self.echo(f'        warning: {exc}; this run may not repeat exactly')
+                self.warnings.append(f'{exc}; this run may not repeat exactly')
 
     @staticmethod
     def _paused_at(c: SuiteClient, t: float) -> bool:
         """The simulator's /diagnostics summary says it is paused at ``t``."""
-        text = f'paused at t={t:.3f} s'
-        return any(node == 'simulator' and m.startswith(text)
-                   for node, _l, m in c.diagnostics[-20:])
+        return any(node == 'simulator' and v.get('paused_at')
+                   and abs(float(v['paused_at']) - t) < 1e-9
+                   for node, v in c.diagnostic_values[-20:])
 
     @staticmethod
     def _refusal(c: SuiteClient) -> str | None:
-        for node, _level, message in reversed(c.diagnostics):
-            if node == 'planner' and message.startswith('goal_'):
-                return message
-        return None
+        refused = [e for e in c.events_of('planner') if e.kind.startswith('goal_')]
+        return refused[-1].message if refused else None
 
     @staticmethod
     def _recorded(c: SuiteClient, topic: str) -> bool:
@@ -220,8 +231,30 @@ class Demo:
 
     @staticmethod
     def _accepted(c: SuiteClient) -> int:
-        return sum(1 for node, _l, m in c.diagnostics
-                   if node == 'controller' and m.startswith('trajectory_accepted'))
+        return len(c.events_of('controller', 'trajectory_accepted'))
+
+
+#: Reports that are the run's own subject, not something late, refused or lost: torque
+#: saturation is in the table (peak torque at the effort limit).
+EXPECTED_EVENTS = {'saturation'}
+
+
+def suite_warnings(c: SuiteClient) -> list[str]:
+    """One line per kind of problem the suite's nodes reported on /diagnostics during the
+    run (late, refused, re-sent, dropped ...), with how often and the last message."""
+    seen: dict[tuple[str, str], list] = {}
+    for e in c.events:
+        if e.level >= 1 and e.kind not in EXPECTED_EVENTS:
+            entry = seen.setdefault((e.node, e.kind), [0, ''])
+            entry[0] += 1
+            entry[1] = e.message
+    lines = []
+    for (node, kind), (reports, message) in seen.items():
+        counts = [int(v.get(f'{kind}_count', 0)) for n, v in c.diagnostic_values if n == node]
+        total = max(counts + [reports])
+        lines.append(f'{node} reported {kind} {total} time(s); last: '
+                     f"{message.removeprefix(kind + ': ')}")
+    return lines
 
 
 def default_domain() -> int:

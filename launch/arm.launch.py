@@ -25,8 +25,9 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
+from arm_dynamics.timing import TIMING_MODES  # the one list of modes
+
 PACKAGE = 'arm_sim'
-TIMING_MODES = ['real_time', 'as_fast_as_possible', 'lockstep']
 # Topic names are relative: '/clock' -> 'clock' lands in the node's namespace.
 CLOCK_REMAP = [('/clock', 'clock')]
 
@@ -57,7 +58,9 @@ def _arguments() -> list[DeclareLaunchArgument]:
                         'topic. The simulator itself always runs on the wall clock.'),
         DeclareLaunchArgument(
             'timing_mode', default_value='', choices=['', *TIMING_MODES],
-            description='Simulator timing mode; empty: the value in params_file.'),
+            description='Simulator timing mode: real_time (wall-clock speed, the default in '
+                        'config/arm.yaml) or lockstep (deterministic, as fast as the closed '
+                        'loop runs); empty: the value in params_file.'),
         DeclareLaunchArgument(
             'bag', default_value=default_bag,
             description='Bag directory the recorder creates (parameter "output"); default: '

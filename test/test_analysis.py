@@ -75,7 +75,8 @@ def synthetic_bag(path: Path, robot=True, reference=True) -> dict:
     tau = np.tile([60.0, 5.0], (7, 1))
     ref = q - 0.01  # tracking error exactly 0.01 rad
     log = write_run(w, ch, 1_000_000_000, t, q, qd, tau, ref if reference else None,
-                    (np.array([[0.0, 0.5], [1.0, 0.5]]), np.array([0.0, 3.0])))
+                    (np.array([[0.0, 0.5], [1.0, 0.5]]), np.array([0.0, 3.0])),
+                    stamp0=1_000_000_000)
     # straight line from (1.2, 0.3) to (0.6, 0.9); the tip runs 2 mm off it at mid-way
     a, b = np.array([1.2, 0.3]), np.array([0.6, 0.9])
     s = np.linspace(0, 1, 21)
@@ -113,6 +114,36 @@ def test_regulation_and_straight_line_segments_match_hand_values(tmp_path):
     assert line.tracking_rms == pytest.approx([0, 0], abs=1e-12)
     doc = json.loads(json.dumps(rep.to_dict()))
     assert doc['segments'][1]['deviation_max'] == pytest.approx(0.002, abs=1e-9)
+
+
+def test_segments_depend_on_simulated_time_only_not_on_receive_times_or_resent_states(
+        tmp_path):
+    """The same joint states give the same table when the recorder received the
+    trajectories late (after some of their states) and when states were re-sent."""
+    synthetic_bag(tmp_path / 'bag')
+    bag = read_bag(tmp_path / 'bag')
+    base = analyze(tmp_path / 'bag').to_dict()
+    js = bag.joint_states
+    for tr in bag.trajectories:  # received 3 states after their start
+        tr.log_time = int(js.log_time[np.searchsorted(js.log_time, tr.log_time) + 3])
+    dup = np.repeat(np.arange(len(js)), np.where(np.arange(len(js)) % 4 == 0, 3, 1))
+    bag.joint_states = type(js)(js.topic, js.names, js.stamp[dup], js.log_time[dup],
+                                js.position[dup], js.velocity[dup], js.effort[dup])
+    from arm_bag.analysis import analyze_data
+    lagged = analyze_data(bag).to_dict()
+    assert lagged['segments'] == base['segments']
+    assert lagged['run'] == base['run']
+
+
+def test_unstamped_trajectories_fall_back_to_receive_time_with_a_warning(tmp_path):
+    synthetic_bag(tmp_path / 'bag')
+    bag = read_bag(tmp_path / 'bag')
+    for tr in bag.trajectories:
+        tr.trajectory.stamp = 0
+    from arm_bag.analysis import analyze_data
+    rep = analyze_data(bag)
+    assert [s.mode for s in rep.segments] == ['regulation', 'straight_line']
+    assert any('without a header stamp' in w for w in rep.warnings)
 
 
 def test_without_reference_or_robot_record_the_set_point_and_defaults_are_used(tmp_path):

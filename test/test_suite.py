@@ -32,10 +32,10 @@ def goal(x: float, y: float) -> PoseStamped:
 
 
 def start_suite(launch, ns: str | None = None, sim: dict | None = None):
-    remaps = {'/clock': 'clock'} if ns else None
+    # No /clock remap: the nodes resolve it in their namespace themselves.
     for name, params in (('simulator', {'timing_mode': 'lockstep', **(sim or {})}),
                          ('controller', {}), ('planner', {})):
-        launch(name, params_file=CONFIG, params=params, namespace=ns, remaps=remaps)
+        launch(name, params_file=CONFIG, params=params, namespace=ns)
 
 
 def connect(ros, prefix: str = ''):
@@ -111,6 +111,26 @@ def test_two_arms_in_two_namespaces_do_not_interfere(ros, launch):
     assert np.abs(arm2 - [0.2, 0.9]).max() < 1e-9, 'arm2 stayed where it was held'
     assert not a2[1], 'arm2 got no plan'
     assert len(ros.node.get_publishers_info_by_topic('/clock')) == 0, 'no shared /clock'
+
+
+def test_nodes_started_in_a_namespace_run_on_their_own_simulators_clock(ros, launch):
+    # As a user would with ros2 run ... --ros-args -r __ns:=/arm3: no /clock remap given.
+    start_suite(launch, ns='/arm3')
+    connect(ros, '/arm3/')
+
+    def clock_subscribers():
+        return {name for name in ('controller', 'planner')
+                if ('/arm3/clock', ['rosgraph_msgs/msg/Clock']) in
+                ros.node.get_subscriber_names_and_types_by_node(name, '/arm3')}
+
+    ros.wait_for(lambda: clock_subscribers() == {'controller', 'planner'},
+                 what='controller and planner to subscribe /arm3/clock')
+    for name in ('controller', 'planner'):
+        topics = [t for t, _ in ros.node.get_subscriber_names_and_types_by_node(name, '/arm3')]
+        assert '/clock' not in topics, f'/arm3/{name} does not listen to the root /clock'
+    clocks = ros.collect(Clock, '/arm3/clock')
+    ros.wait_for(lambda: clocks and clocks[-1].clock.sec + clocks[-1].clock.nanosec > 0,
+                 what='the simulated clock to run on /arm3/clock')
 
 
 def run_cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
