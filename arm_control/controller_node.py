@@ -128,8 +128,9 @@ class ControllerNode(Node):
         self.diag = Diagnostics(self, sim_time=lambda: self.core.last_time)
         self.latest: tuple[float, np.ndarray, np.ndarray] | None = None
         self.latest_wall = 0.0
-        # lockstep: the last answer, re-sent verbatim if its state comes again
-        self.answer: tuple[int, np.ndarray, Float64MultiArray] | None = None
+        # lockstep: the last answer, re-sent verbatim if its state comes again, and whether
+        # a simulator was matched when it went out
+        self.answer: tuple[int, np.ndarray, Float64MultiArray, bool] | None = None
         self.resent = 0
         self.early: tuple[JointTrajectory, float] | None = None  # before any state (wall)
         self.stale = False
@@ -188,9 +189,10 @@ class ControllerNode(Node):
             if answer is not None and answer[0] == stamp_ns and np.array_equal(answer[1], q):
                 self.resent += 1  # the same state again: its answer was lost or early
                 self.cmd_pub.publish(answer[2])
-                self.diag.problem('answer_resent', f'the state at t={self.latest[0]:.3f} s '
-                                  'came again (the simulator got no answer to it): the same '
-                                  'command re-sent')
+                if answer[3]:  # it went to a matched simulator: lost on the way
+                    self.diag.problem('answer_resent', f'the state at t={self.latest[0]:.3f}'
+                                      ' s came again (the simulator got no answer to it): '
+                                      'the same command re-sent')
                 return
             self._control(stamp_ns)
 
@@ -232,7 +234,7 @@ class ControllerNode(Node):
         if stamp_ns is not None:  # lockstep: name the state this command answers
             out.layout.dim = [MultiArrayDimension(label=answer_tag(stamp_ns),
                                                   size=len(out.data), stride=len(out.data))]
-            self.answer = (stamp_ns, q, out)
+            self.answer = (stamp_ns, q, out, self.cmd_pub.get_subscription_count() > 0)
         self.cmd_pub.publish(out)
         ref = JointState(name=list(self.core.joint_names), position=step.q_des.tolist(),
                          velocity=step.qd_des.tolist(), effort=cmd.tau.tolist())
