@@ -315,3 +315,21 @@ def test_stale_joint_states_stop_commanding_until_fresh_ones_arrive(ros, launch)
     pub.publish(state)
     ros.wait_for(lambda: len(commands) >= n + 3, what='commands after a fresh state')
     assert not problems(diags[seen:], '/controller', 'rejected_state')
+
+
+def test_real_time_starts_exactly_at_the_initial_state_when_the_controller_is_late(
+        ros, launch):
+    import time
+    launch('simulator', params_file=CONFIG, params={'timing_mode': 'real_time'})
+    states = ros.collect(JointState, 'joint_states', qos=1000)
+    ros.wait_for(lambda: states, what='the held initial state')
+    started = time.monotonic()
+    # The stimulus: the controller comes up 5 s (wall) after the simulator.
+    ros.wait_for(lambda: time.monotonic() - started >= 5.0, timeout=10,
+                 what='5 s without a controller')
+    assert {stamp(m) for m in states} == {0.0}, 'time stood at its start'
+    assert all(list(m.position) == Q0 for m in states), 'exactly initial_positions'
+    launch('controller', params_file=CONFIG)
+    ros.wait_for(lambda: stamp(states[-1]) >= 1.0, timeout=30, what='1 s of control')
+    q = np.array([m.position for m in states])
+    assert np.abs(q - Q0).max() < 1e-6, 'held where it started: it never dropped'
