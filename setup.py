@@ -44,6 +44,7 @@ setup(
             'controller = arm_control.controller_node:main',
             'planner = arm_planner.planner_node:main',
             'recorder = arm_bag.recorder_node:main',
+            'composed = arm_sim.composed:main',
             'arm-sim = arm_sim.cli:main',
         ],
     },

@@ -81,17 +81,20 @@ def cmd_bringup(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path('runs') / time.strftime('bringup-%Y%m%d-%H%M%S')
     (out / 'logs').mkdir(parents=True, exist_ok=True)
     ns = args.namespace
-    nodes = ['simulator', 'controller', 'planner'] + (['recorder'] if args.record else [])
+    loop = ['composed'] if args.composed else ['simulator', 'controller']
+    nodes = loop + ['planner'] + (['recorder'] if args.record else [])
+    overrides = {'simulator': {'simulator': {'timing_mode': args.timing_mode}},
+                 'recorder': {'recorder': {'output': str(out / 'bag')}}}
+    overrides['composed'] = overrides['simulator']  # per node, by node name
     procs = []
     for name in nodes:
-        params = {'timing_mode': args.timing_mode} if name == 'simulator' else {}
-        if name == 'recorder':
-            params = {'output': str(out / 'bag')}
         # Each node resolves /clock in its own namespace (arm_sim.ros_common).
-        procs.append(NodeProcess(name, params_file=config_file(), params=params,
+        procs.append(NodeProcess(name, params_file=config_file(),
+                                 node_params=overrides.get(name),
                                  namespace=ns or None, domain_id=domain,
                                  log_path=out / 'logs' / f'{name}.log'))
-    print(f'arm-sim bringup: {", ".join(nodes)} running on ROS domain {domain} '
+    shown = ['simulator + controller (one process)' if n == 'composed' else n for n in nodes]
+    print(f'arm-sim bringup: {", ".join(shown)} running on ROS domain {domain} '
           f'(namespace {ns or "/"}, simulator {args.timing_mode}); logs in {out}/logs')
     print(f'  send goals from another terminal: ROS_DOMAIN_ID={domain} arm-sim goal X Y '
           f'[--mode straight_line]{" --namespace " + ns if ns else ""}')
@@ -227,6 +230,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help='simulator timing: real_time (default: wall-clock speed, for '
                        'watching and driving by hand) or lockstep (deterministic, as fast as '
                        'the closed loop runs)')
+    bring.add_argument('--composed', action='store_true',
+                       help='run simulator and controller in one process with one executor '
+                       '(the composed executable): the loop never leaves the process, which '
+                       'holds real time at 1 kHz control (see bench/bench_loop.py)')
     bring.add_argument('--namespace', default='', help='namespace for all nodes and topics')
     bring.add_argument('--no-record', dest='record', action='store_false',
                        help='do not start the recorder')

@@ -20,6 +20,7 @@ MODULES = {
     'controller': 'arm_control.controller_node',
     'planner': 'arm_planner.planner_node',
     'recorder': 'arm_bag.recorder_node',
+    'composed': 'arm_sim.composed',  # simulator + controller in one process
 }
 
 
@@ -71,17 +72,21 @@ class NodeProcess:
     def __init__(self, name: str, *, params: dict | None = None,
                  params_file: str | Path | None = None, namespace: str | None = None,
                  remaps: dict[str, str] | None = None, domain_id: int | None = None,
-                 log_path: str | Path | None = None, extra_args: list[str] | None = None):
+                 log_path: str | Path | None = None, extra_args: list[str] | None = None,
+                 node_params: dict[str, dict] | None = None):
         self.name = name
         ros_args = []
         if params_file:
             ros_args += ['--params-file', str(params_file)]
-        if params:
+        sections = {**({name: params} if params else {}), **(node_params or {})}
+        if sections:
             # '-p' overrides count as '/**' entries, which a params file's '/**/<node>'
-            # section beats; a second file keyed by node name overrides both.
+            # section beats; a second file keyed by node name overrides both. A process
+            # of several nodes (composed) gets a section per node (``node_params``).
             fd, path = tempfile.mkstemp(prefix=f'{name}-', suffix='.params.yaml')
             with os.fdopen(fd, 'w') as f:
-                json.dump({f'/**/{name}': {'ros__parameters': params}}, f)  # JSON is YAML
+                json.dump({f'/**/{node}': {'ros__parameters': values}
+                           for node, values in sections.items()}, f)  # JSON is YAML
             self._params_path: str | None = path
             ros_args += ['--params-file', path]
         else:

@@ -216,7 +216,7 @@ def spin_until_stopped(executor: EventsExecutor, _node: Node,
         executor.spin_once(timeout_sec=0.1)
 
 
-def run_node(factory: Callable[[], Node], *, prog: str, summary: str,
+def run_node(factory: Callable[[], Node | list[Node]], *, prog: str, summary: str,
              specs: Iterable[ParamSpec], args: list[str] | None = None,
              spin: Spin | None = None,
              executor_type: Callable[[], object] | None = None) -> int:
@@ -230,7 +230,8 @@ def run_node(factory: Callable[[], Node], *, prog: str, summary: str,
     shutdown racing a callback made rclpy raise from ``take_message`` (exit code 1).
     ``executor_type`` overrides the executor (the recorder keeps SingleThreadedExecutor:
     its raw subscriptions and message-lost events misbehave under EventsExecutor).
-    Refused start-up parameters print one line and return 2.
+    Refused start-up parameters print one line and return 2. ``factory`` may return several
+    nodes: they are composed in this one process and spun by one executor.
     """
     argv = sys.argv[1:] if args is None else args
     own = argv[:argv.index('--ros-args')] if '--ros-args' in argv else argv
@@ -249,20 +250,22 @@ def run_node(factory: Callable[[], Node], *, prog: str, summary: str,
     def running() -> bool:
         return not stop and rclpy.ok()
 
-    node = None
+    nodes: list[Node] = []
     code = 0
     try:
-        node = factory()
+        made = factory()
+        nodes = made if isinstance(made, list) else [made]
         executor = (executor_type or EXECUTOR)()
-        executor.add_node(node)
-        (spin or spin_until_stopped)(executor, node, running)
+        for node in nodes:
+            executor.add_node(node)
+        (spin or spin_until_stopped)(executor, nodes[0], running)
     except ConfigError as exc:
         print(f'{prog}: refused parameters: {exc}', file=sys.stderr)
         code = 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        if node is not None:
+        for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
     return code

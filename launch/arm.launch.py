@@ -1,7 +1,8 @@
 """Start the arm_sim suite on a ROS 2 Jazzy install: simulator, controller, planner, recorder.
 
     ros2 launch arm_sim arm.launch.py
-    ros2 launch arm_sim arm.launch.py namespace:=arm2 timing_mode:=real_time record:=false
+    ros2 launch arm_sim arm.launch.py namespace:=arm2 timing_mode:=lockstep record:=false
+    ros2 launch arm_sim arm.launch.py composed:=true     # simulator + controller, one process
     ros2 launch arm_sim arm.launch.py --show-args
 
 The simulator is the clock source: it publishes ``clock`` relative to its namespace, so
@@ -37,6 +38,7 @@ use_sim_time = LaunchConfiguration('use_sim_time')
 timing_mode = LaunchConfiguration('timing_mode')
 bag = LaunchConfiguration('bag')
 record = LaunchConfiguration('record')
+composed = LaunchConfiguration('composed')
 
 
 def _arguments() -> list[DeclareLaunchArgument]:
@@ -68,20 +70,33 @@ def _arguments() -> list[DeclareLaunchArgument]:
         DeclareLaunchArgument(
             'record', default_value='true', choices=['true', 'false'],
             description='Start the recorder.'),
+        DeclareLaunchArgument(
+            'composed', default_value='false', choices=['true', 'false'],
+            description='Run simulator and controller in one process with one executor '
+                        '(executable "composed"): holds real time at 1 kHz control. Their '
+                        'settings then come from params_file (and timing_mode) only.'),
     ]
 
 
-def _simulator(context: LaunchContext) -> list[Node]:
-    """The simulator, with ``timing_mode`` overriding params_file only when non-empty.
+def _loop(context: LaunchContext) -> list[Node]:
+    """The simulator and the controller: two processes, or one (``composed``), with
+    ``timing_mode`` overriding params_file only when non-empty.
 
-    It is the clock source and must run on the wall clock, so ``use_sim_time`` is pinned to
-    false even if params_file sets it for all nodes.
+    The simulator is the clock source and must run on the wall clock, so its
+    ``use_sim_time`` is pinned to false even if params_file sets it for all nodes (composed:
+    params_file's per-node sections decide, as config/arm.yaml does).
     """
     mode = timing_mode.perform(context).strip()
-    overrides = [{'use_sim_time': False}] + ([{'timing_mode': mode}] if mode else [])
+    modes = [{'timing_mode': mode}] if mode else []
+    if composed.perform(context) == 'true':
+        return [Node(package=PACKAGE, executable='composed', namespace=namespace,
+                     parameters=[params_file, *modes], remappings=CLOCK_REMAP,
+                     output='screen')]
     return [Node(package=PACKAGE, executable='simulator', name='simulator',
-                 namespace=namespace, parameters=[params_file, *overrides],
-                 remappings=CLOCK_REMAP, output='screen')]
+                 namespace=namespace, parameters=[params_file, {'use_sim_time': False},
+                                                  *modes],
+                 remappings=CLOCK_REMAP, output='screen'),
+            _sim_time_node('controller')]
 
 
 def _sim_time_node(executable: str, **kwargs) -> Node:
@@ -97,8 +112,7 @@ def _sim_time_node(executable: str, **kwargs) -> Node:
 def generate_launch_description() -> LaunchDescription:
     return LaunchDescription([
         *_arguments(),
-        OpaqueFunction(function=_simulator),
-        _sim_time_node('controller'),
+        OpaqueFunction(function=_loop),
         _sim_time_node('planner'),
         _sim_time_node('recorder',
                        parameters=[{'output': ParameterValue(bag, value_type=str)}],

@@ -117,9 +117,11 @@ def workspace(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_colcon_installs_the_ament_python_layout(workspace: Path):
     prefix = workspace / 'install' / PACKAGE
-    exe = prefix / 'lib' / PACKAGE / 'simulator'
-    assert exe.is_file() and os.access(exe, os.X_OK), (
-        f'{exe} missing or not executable (setup.cfg install_scripts?)\n{colcon_log(workspace)}')
+    for name in ('simulator', 'controller', 'planner', 'recorder', 'composed'):
+        exe = prefix / 'lib' / PACKAGE / name
+        assert exe.is_file() and os.access(exe, os.X_OK), (
+            f'{exe} missing or not executable (setup.cfg install_scripts?)\n'
+            f'{colcon_log(workspace)}')
     for rel in [f'share/{PACKAGE}/package.xml', f'share/{PACKAGE}/config/arm.yaml',
                 f'share/{PACKAGE}/launch/arm.launch.py',
                 f'share/ament_index/resource_index/packages/{PACKAGE}',

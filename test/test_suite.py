@@ -161,22 +161,35 @@ def test_arm_sim_goal_rejects_bad_arguments_in_one_line(args, message):
     assert out.returncode == 1 and out.stderr.count('\n') == 1 and message in out.stderr
 
 
-def test_arm_sim_bringup_runs_the_suite_and_stops_it_cleanly(ros, tmp_path):
+@pytest.mark.parametrize('extra, stopped', [
+    ([], 'simulator (0), controller (0), planner (0), recorder (0)'),
+    (['--composed', '--no-record'], 'composed (0), planner (0)'),
+])
+def test_arm_sim_bringup_runs_the_suite_in_real_time_and_stops_it_cleanly(ros, tmp_path,
+                                                                          extra, stopped):
     import signal
 
     from conftest import DOMAIN_ID
-    states = ros.collect(JointState, 'joint_states')
+    states = ros.collect(JointState, 'joint_states', qos=1000)
     proc = subprocess.Popen([sys.executable, '-m', 'arm_sim.cli', 'bringup', '--out',
-                             str(tmp_path / 'run'), '--domain-id', str(DOMAIN_ID)],
+                             str(tmp_path / 'run'), '--domain-id', str(DOMAIN_ID), *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             env=node_env(DOMAIN_ID))
     try:
-        # Real time: the arm runs (and sags) from the start; then the controller takes it.
-        ros.wait_for(lambda: states and abs(states[-1].effort[0]) > 5.0, timeout=30,
-                     what='the controller to hold the arm')
+        # Real time (the shipped default): the simulator holds the start until the
+        # controller's first command, then the controller holds the arm there.
+        ros.wait_for(lambda: states and stamp(states[-1]) > 0.5, timeout=30,
+                     what='simulated time to run under the controller')
+        q = np.array([m.position for m in states])
+        assert np.abs(q - Q0).max() < 1e-6, 'the arm never dropped'
+        if '--composed' in extra:
+            done = run_cli('goal', str(PF[0]), str(PF[1]), timeout=60)
+            assert done.returncode == 0, done.stdout + done.stderr
+            assert done.stdout.splitlines()[-1].startswith('reached: tip at')
     finally:
         proc.send_signal(signal.SIGTERM)
         out, _ = proc.communicate(timeout=30)
     assert proc.returncode == 0, out
-    assert 'stopped: simulator (0), controller (0), planner (0), recorder (0)' in out
-    assert (tmp_path / 'run' / 'bag' / 'metadata.yaml').exists()
+    assert f'stopped: {stopped}' in out
+    if '--no-record' not in extra:
+        assert (tmp_path / 'run' / 'bag' / 'metadata.yaml').exists()
