@@ -13,6 +13,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
@@ -41,15 +42,20 @@ joint_trajectory_controller takes it: one point = set point; several = interpola
 quintic/cubic/linear by what the points carry; header.stamp = start time, zero = on
 arrival). Publishes effort_controller/commands (std_msgs/Float64MultiArray, N m) and
 arm_controller/reference (JointState: desired position and velocity, commanded effort,
-stamped like the state it answers). Until the first trajectory it holds the first measured
-position. Laws: pd, pd_gravity, computed_torque, pid. Reports on /diagnostics.
+stamped like the state it answers) and arm_controller/trajectory_status
+(diagnostic_msgs/DiagnosticStatus: OK "accepted" or WARN "refused: <reason>" for each
+trajectory received, key stamp_ns = its header stamp). Until the first trajectory it
+holds the first measured position. Laws: pd, pd_gravity, computed_torque, pid. Reports
+on /diagnostics.
 
-A trajectory that arrives before the first joint state waits for it (refused after
-state_timeout of wall time without one). When simulated time goes back or jumps (a
-restarted simulator, a reset, a bag replay) the trajectory is dropped, the measured
-position held and the jump reported; a restarted controller holds where the arm is.
+A trajectory that arrives before the first joint state waits for it (refused after 5 s of
+wall time without one: a new process may take a second to be matched with the
+simulator). When simulated time goes back or jumps (a restarted simulator, a reset, a bag
+replay) the trajectory is dropped, the measured position held and the jump reported; a
+restarted controller holds where the arm is.
 '''
 
+EARLY_WAIT = 5.0  # s (wall): a trajectory received before any joint state waits this long
 MODEL_KEYS = tuple(k for k in TwoLinkArm.PARAMETERS if k != 'gravity')  # model.<key>
 
 CONTROL_PARAMS: tuple[ParamSpec, ...] = (
@@ -73,8 +79,7 @@ CONTROL_PARAMS: tuple[ParamSpec, ...] = (
               minimum=0.0, strict_min=True, maximum=10000.0, read_only=True),
     ParamSpec('state_timeout', 'double', 0.5,
               'Wall-clock age of the last joint state after which the controller stops '
-              'commanding and reports (timer mode); commanding resumes with fresh states. '
-              'Also how long a trajectory received before any joint state waits for one',
+              'commanding and reports (timer mode); commanding resumes with fresh states',
               's', minimum=0.0, strict_min=True, maximum=3600.0),
     ParamSpec('time_jump_threshold', 'double', 1.0,
               'A forward step of simulated time between two joint states longer than this '
@@ -122,6 +127,8 @@ class ControllerNode(Node):
         self.cmd_pub = self.create_publisher(Float64MultiArray, 'effort_controller/commands',
                                              10)
         self.ref_pub = self.create_publisher(JointState, 'arm_controller/reference', 10)
+        self.status_pub = self.create_publisher(DiagnosticStatus,
+                                                'arm_controller/trajectory_status', 10)
         self.create_subscription(JointState, 'joint_states', self._on_state, 10)
         self.create_subscription(JointTrajectory, 'arm_controller/joint_trajectory',
                                  self._on_trajectory, 10)
@@ -210,13 +217,32 @@ class ControllerNode(Node):
         try:
             traj = self.core.set_trajectory(msg.joint_names, points, start, q, qd, now=t_now)
         except TrajectoryError as exc:
-            self.diag.problem('rejected_trajectory', f'trajectory refused: {exc}; keeping '
-                              'the current reference', start_time=f'{start:.9f}')
+            self._refuse(msg, f'{exc}; keeping the current reference', start_time=start)
             return
         text = (f'{len(msg.points)} point(s) over {traj.duration:.3f} s from t={start:.3f} s')
         self.get_logger().info(f'new trajectory: {text}')
         self.diag.event('trajectory_accepted', text, start_time=f'{start:.9f}',
                         duration=f'{traj.duration:.9f}', points=len(msg.points))
+        self._status(msg, DiagnosticStatus.OK, f'accepted: {text}', start)
+
+    def _status(self, msg: JointTrajectory, level: bytes, text: str,
+                start: float | None) -> None:
+        """Say on arm_controller/trajectory_status what became of ``msg``: the topic
+        interface has no reply of its own, and a sender must not take 'published' for
+        'executed' (the planner re-sends until it reads one)."""
+        status = DiagnosticStatus(level=level, name=self.get_fully_qualified_name(),
+                                  message=text, hardware_id='arm_sim')
+        status.values = [KeyValue(key='stamp_ns', value=str(_stamp_ns(msg))),
+                         KeyValue(key='points', value=str(len(msg.points)))]
+        if start is not None:
+            status.values.append(KeyValue(key='start_time', value=f'{start:.9f}'))
+        self.status_pub.publish(status)
+
+    def _refuse(self, msg: JointTrajectory, reason: str, start_time: float | None = None):
+        self.diag.problem('rejected_trajectory', f'trajectory refused: {reason}',
+                          **({} if start_time is None else
+                             {'start_time': f'{start_time:.9f}'}))
+        self._status(msg, DiagnosticStatus.WARN, f'refused: {reason}', start_time)
 
     # ------------------------------------------------------------------ output
     def _on_timer(self) -> None:
@@ -252,11 +278,10 @@ class ControllerNode(Node):
 
     def _watch(self) -> None:
         now = time.monotonic()
-        if self.early is not None and now - self.early[1] > self.params['state_timeout']:
-            self.early = None
-            self.diag.problem('rejected_trajectory', 'trajectory refused: no joint state '
-                              f"within {self.params['state_timeout']:g} s (wall) of it, so "
-                              'the start of the motion is unknown')
+        if self.early is not None and now - self.early[1] > EARLY_WAIT:
+            msg, self.early = self.early[0], None
+            self._refuse(msg, f'no joint state within {EARLY_WAIT:g} s (wall) of it, so the '
+                         'start of the motion is unknown')
         age = now - self.latest_wall
         if (self.params['update_on'] == 'timer' and self.latest is not None
                 and not self.stale and age > self.params['state_timeout']):

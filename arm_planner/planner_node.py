@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Duration, Time
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
@@ -63,7 +64,10 @@ Unreachable or near-singular goals, goals in another frame, non-finite goals and
 before any joint state are refused on /diagnostics; nothing is published for them. When
 simulated time goes back or jumps during a planned motion (a restarted simulator, a reset),
 the controller drops the motion and the planner reports the goal as interrupted (send it
-again: it is planned from the new state).
+again: it is planned from the new state). A trajectory is re-sent (up to 5 times, 1 s
+apart, planned again from the latest state) until the controller confirms it on
+arm_controller/trajectory_status; a refusal
+there, or no confirmation, is reported as goal_refused_by_controller or goal_unsent.
 '''
 
 PLANNER_PARAMS: tuple[ParamSpec, ...] = (
@@ -150,6 +154,8 @@ def path_message(plan: Plan, frame: str, stamp) -> Path:
 
 
 CONTROLLER_WAIT = 5.0  # s (wall): how long a plan waits for a controller to subscribe
+CONFIRM_WAIT = 1.0  # s (wall): re-send a trajectory no controller confirmed after this
+SENDS = 5  # at most this many sends of one trajectory
 
 class PlannerNode(Node):
     """See the module docstring."""
@@ -176,6 +182,9 @@ class PlannerNode(Node):
         self.path_pub = self.create_publisher(Path, 'planner/path', 10)
         self.create_subscription(JointState, 'joint_states', self._on_joint_state, 10)
         self.create_subscription(PoseStamped, 'goal_pose', self._on_goal, 10)
+        self.create_subscription(DiagnosticStatus, 'arm_controller/trajectory_status',
+                                 self._on_trajectory_status, 10)
+        self.sent: dict | None = None  # the last trajectory, until a controller confirms it
         self.diag = Diagnostics(self, sim_time=lambda: None if self.q is None
                                 else self.t_ns * 1e-9)
         self.diag.set('OK', 'waiting for joint_states', plans=0)
@@ -269,21 +278,67 @@ class PlannerNode(Node):
             self.diag.problem('goal_before_state', 'goal_pose refused: no joint_states received '
                               'yet, so the start of the motion is unknown')
             return
+        self._plan((float(goal[0]), float(goal[1])), sends=0)
+
+    def _plan(self, goal: tuple[float, float], sends: int) -> None:
+        """Plan ``goal`` from the latest state and queue it for sending (``sends`` = how
+        often this goal's trajectory went out already)."""
         try:
-            plan = plan_goal(self.arm, self.limits, self.q, goal, settings_from(self.params))
+            plan = plan_goal(self.arm, self.limits, self.q, np.array(goal),
+                             settings_from(self.params))
         except (PlanningError, ValueError) as exc:
             self.diag.problem('goal_refused', f'goal_pose refused: {exc}')
             return
-        self.pending = (plan, time.monotonic() + CONTROLLER_WAIT, self.t_ns,
-                        (float(goal[0]), float(goal[1])))
+        self.pending = (plan, time.monotonic() + CONTROLLER_WAIT, self.t_ns, goal, sends)
         self._send_pending()
+
+    def _on_trajectory_status(self, status: DiagnosticStatus) -> None:
+        """The controller's word on a trajectory: the one we sent is settled."""
+        values = {kv.key: kv.value for kv in status.values}
+        sent = self.sent
+        if sent is None or values.get('stamp_ns') != str(sent['stamp']):
+            return
+        self.sent = None
+        level = status.level if isinstance(status.level, int) else status.level[0]
+        if level == 0:
+            self.diag.event('plan_accepted', f"controller: {status.message}",
+                            start_time=f"{sent['stamp'] * 1e-9:.9f}")
+            return
+        self.active = None
+        goal = sent['goal']
+        self.diag.problem('goal_refused_by_controller', f'goal ({goal[0]:.4f}, '
+                          f'{goal[1]:.4f}) m: the controller {status.message}',
+                          goal_x=goal[0], goal_y=goal[1])
+
+    def _confirm_sent(self) -> None:
+        """Send the goal again until a controller confirms its trajectory: a publish can
+        reach no live controller (one that just restarted and is not matched yet, while one
+        that left still counts as a subscriber). It is planned again from the latest state
+        (time may have moved on meanwhile); at a standstill that is the same plan."""
+        sent = self.sent
+        if sent is None or time.monotonic() - sent['at'] < CONFIRM_WAIT:
+            return
+        if sent['sends'] >= SENDS:
+            self.sent = None
+            self.active = None
+            goal = sent['goal']
+            self.diag.problem('goal_unsent', f'goal ({goal[0]:.4f}, {goal[1]:.4f}) m dropped: '
+                              f"no controller confirmed its trajectory in {sent['sends']} "
+                              f'sends, {CONFIRM_WAIT:g} s apart', goal_x=goal[0], goal_y=goal[1])
+            return
+        self.sent = None
+        self.get_logger().info(f"no controller confirmed the trajectory to {sent['goal']} in "
+                               f'{CONFIRM_WAIT:g} s: planning it again from the latest state '
+                               f"(send {sent['sends'] + 1} of {SENDS})")
+        self._plan(sent['goal'], sends=sent['sends'])
 
     def _send_pending(self) -> None:
         """Publish the pending plan once a controller is matched: a trajectory published
         before the controller's subscription matches is lost (volatile QoS)."""
+        self._confirm_sent()
         if self.pending is None:
             return
-        plan, deadline, start_ns, goal = self.pending
+        plan, deadline, start_ns, goal, sends = self.pending
         if self.traj_pub.get_subscription_count() == 0:
             if time.monotonic() > deadline:
                 self.pending = None
@@ -291,7 +346,10 @@ class PlannerNode(Node):
                                   f'to arm_controller/joint_trajectory for {CONTROLLER_WAIT:g} s')
             return
         self.pending = None
-        self.traj_pub.publish(trajectory_message(plan, self.joint_names, start_ns))
+        msg = trajectory_message(plan, self.joint_names, start_ns)
+        self.traj_pub.publish(msg)
+        self.sent = {'stamp': start_ns, 'at': time.monotonic(), 'sends': sends + 1,
+                     'goal': goal}
         self.active = (start_ns + int(round(float(plan.times[-1]) * 1e9)), goal)
         sec, nanosec = divmod(start_ns, 1_000_000_000)
         self.path_pub.publish(path_message(plan, self.params['base_frame'],

@@ -193,3 +193,35 @@ def test_arm_sim_bringup_runs_the_suite_in_real_time_and_stops_it_cleanly(ros, t
     assert f'stopped: {stopped}' in out
     if '--no-record' not in extra:
         assert (tmp_path / 'run' / 'bag' / 'metadata.yaml').exists()
+
+
+def test_a_goal_sent_right_after_a_controller_restart_is_executed(ros, launch):
+    """The first send may reach no live controller (the new one is not matched yet, the old
+    one still counts) or reach it before its first joint state: the planner sends again,
+    planned from the latest state, until the controller confirms; the controller keeps an
+    early trajectory until its first state. So the goal is executed, never lost."""
+    start_suite(launch)
+    states, trajs, goals = connect(ros)
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+
+    def planner_events(kinds, since):
+        return [v for d in diags[since:] for s in d.status if s.name == '/planner'
+                for v in [{kv.key: kv.value for kv in s.values}]
+                if v.get('event', '').startswith(kinds)]
+
+    for k, target in enumerate((PF, PS, PF)):
+        old = [p for p in launch.procs if p.name == 'controller' and p.alive()][0]
+        assert old.stop() == 0
+        launch('controller', params_file=CONFIG)
+        n = len(diags)
+        goals.publish(goal(*target))  # at once: the new controller may not be matched yet
+        outcome = ros.wait_for(lambda: planner_events(('plan_accepted', 'goal_'), n),
+                               timeout=30, what=f'goal {k} accepted or refused')[0]
+        assert outcome['event'] == 'plan_accepted', outcome
+        start = float(outcome['start_time'])
+        end = trajs[-1].points[-1].time_from_start
+        run_until = start + end.sec + end.nanosec * 1e-9 + 1.0
+        ros.wait_for(lambda: stamp(states[-1]) >= run_until, timeout=60,
+                     what='the motion to finish')
+        reached = ARM.forward_kinematics(np.array(states[-1].position))
+        assert np.hypot(*(reached - target)) < 1e-3, f'goal {k} reached'
