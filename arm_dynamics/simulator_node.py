@@ -160,6 +160,7 @@ class SimulatorNode(Node):
         self.pending = False  # lockstep: the current state's answer is held (paused)
         self.wait_reported: float | None = None  # wall s waited at the last wait report
         self.window = None
+        self.windows = 0  # reporting windows closed (each ~1 s of wall time)
         self.rt_timer = None
         self._make_rt_timer()
         self.create_timer(0.05, self._housekeeping, clock=steady_clock())
@@ -320,6 +321,7 @@ class SimulatorNode(Node):
         win = k.window(sim, now)
         if win is not None:
             self.window = win
+            self.windows += 1
             if win.late:
                 self.diag.problem(
                     'late_periods', f'{win.late} of {win.periods} control periods in the last '
@@ -349,6 +351,7 @@ class SimulatorNode(Node):
         self.diag.set(level, message, timing_mode=self.mode,
                       paused_at='' if not self.paused else f'{core.time:.9f}',
                       achieved_real_time_factor=f'{win.real_time_factor:.2f}' if win else '0',
+                      window=self.windows,
                       commands_received=k.commands, stale_commands_ignored=k.stale,
                       control_periods=k.periods, late_periods=k.late_periods,
                       late_waits=k.late_waits, longest_wait_wall=f'{k.longest_wait_s:.3f}',

@@ -351,8 +351,8 @@ def lockstep_figures(res: Result, values: list[dict]) -> None:
     once: its summary may be published twice)."""
     windows, seen = [], set()
     for v in values:
-        key = v.get('sim_time')
-        if key is None or key in seen or 'achieved_real_time_factor' not in v:
+        key = v.get('window')
+        if key in (None, '0') or key in seen or 'achieved_real_time_factor' not in v:
             continue
         seen.add(key)
         windows.append(float(v['achieved_real_time_factor']))
