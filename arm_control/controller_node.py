@@ -206,7 +206,7 @@ class ControllerNode(Node):
     def _on_trajectory(self, msg: JointTrajectory) -> None:
         if self.latest is None:
             # A controller that just started has no state yet: keep the trajectory until
-            # the first one comes (refused after state_timeout, see _watch).
+            # the first one comes (refused after EARLY_WAIT, see _watch).
             self.early = (msg, time.monotonic())
             return
         t_now, q, qd = self.latest

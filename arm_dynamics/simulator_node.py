@@ -20,6 +20,7 @@ from std_srvs.srv import Trigger
 from arm_dynamics.simulation import CommandError, SimulatorCore, make_model, validate_command
 from arm_dynamics.timing import (
     ADVANCE,
+    MAX_CATCH_UP,
     REMOVED_MODES,
     STALE,
     TIMING_MODES,
@@ -198,6 +199,7 @@ class SimulatorNode(Node):
             k.set_mode(changed['timing_mode'])
         if 'real_time_factor' in changed:
             k.real_time_factor = changed['real_time_factor']
+        if 'timing_mode' in changed or 'real_time_factor' in changed:
             self._make_rt_timer()
         if 'command_timeout' in changed:
             k.report_after_ns = _ns(changed['command_timeout'])
@@ -212,8 +214,12 @@ class SimulatorNode(Node):
         self.get_logger().info(f'parameters changed: {changed}')
 
     def _make_rt_timer(self) -> None:
+        """The real-time pacing timer (none in lockstep: commands pace it)."""
         if self.rt_timer is not None:
             self.destroy_timer(self.rt_timer)
+            self.rt_timer = None
+        if self.keeper.mode != 'real_time':
+            return
         wall_period = self.core.period_ns * 1e-9 / self.params['real_time_factor']
         self.rt_timer = self.create_timer(max(wall_period, 1e-4), self._on_rt_tick,
                                           clock=steady_clock())
@@ -238,7 +244,12 @@ class SimulatorNode(Node):
     def _on_rt_tick(self) -> None:
         k = self.keeper
         overruns = k.overruns
-        due = k.periods_due(self.core.time_ns, time.monotonic_ns())
+        steps = 0
+        while steps < MAX_CATCH_UP and k.periods_due(self.core.time_ns,
+                                                     time.monotonic_ns()) > 0:
+            k.before_advance(self.core.time_ns)
+            self._step_and_publish()
+            steps += 1
         if k.overruns > overruns:
             win = self.window
             self.diag.problem('overrun', f'cannot keep up with real_time_factor '
@@ -246,12 +257,6 @@ class SimulatorNode(Node):
                               'given up so far; continuing from here at the same pace'
                               + (f' (achieved {win.real_time_factor:.2f}x)' if win else ''),
                               simulated_time_given_up=f'{k.behind_s:.3f}')
-        for _ in range(due):
-            if k.paused(self.core.time_ns):
-                k.reanchor(time.monotonic_ns())
-                break
-            k.before_advance(self.core.time_ns)
-            self._step_and_publish()
 
     def _on_command(self, msg: Float64MultiArray) -> None:
         answers = parse_answer_tag(msg.layout.dim[0].label) if msg.layout.dim else None
@@ -280,6 +285,8 @@ class SimulatorNode(Node):
             self._step_and_publish()
         elif self.mode == 'lockstep':
             self.pending = True  # paused: advance once pause_at moves
+        else:
+            self._on_rt_tick()  # real_time: the answer may be what a due period waits for
 
     def publish_state(self, new_state: bool = False) -> None:
         view = self.core.joint_view()

@@ -20,9 +20,10 @@ Timing modes (:data:`TIMING_MODES`):
   Nothing that the wall clock does changes the recorded states.
 * ``real_time`` -- simulated time follows the wall clock times ``real_time_factor``, one
   published state per control period. Until the first valid command (``hold_until_command``)
-  the initial state is held and time stands at its start. A period whose state the
-  controller did not answer before the period ended is *late*; late periods are counted
-  and reported with the achieved control rate.
+  the initial state is held and time stands at its start. A period is integrated once its
+  state is answered, or at the latest :data:`GRACE_PERIODS` period after it was due; one
+  integrated without the answer to its state is *late*: late periods are counted and
+  reported with the achieved control rate.
 
 ``as_fast_as_possible`` was removed: free-running steps outrun any external controller (the
 arm diverged with the shipped one); ``lockstep`` runs as fast as the closed loop allows.
@@ -40,7 +41,8 @@ REMOVED_MODES = {
                            'the closed loop runs, deterministic) or real_time',
 }
 HEARTBEAT_NS = 200_000_000  # wall: how often a state nobody answered is re-sent
-MAX_CATCH_UP = 20  # real_time: periods stepped in one wake-up before it counts as an overrun
+MAX_CATCH_UP = 20  # real_time: periods behind before it counts as an overrun
+GRACE_PERIODS = 1  # real_time: how long past its due time a period waits for its answer
 
 #: Lockstep protocol: a command may name the joint state it answers in
 #: ``layout.dim[0].label`` as ``joint_states@<sec>.<nanosec>`` (arm_sim's controller does).
@@ -204,7 +206,14 @@ class Timekeeper:
         return APPLY
 
     def periods_due(self, sim_ns: int, wall_ns: int) -> int:
-        """real_time: how many control periods to advance now (publishing each)."""
+        """real_time: how many control periods to advance now (publishing each); ask
+        again after each one (and after each command): the answer may change.
+
+        With a controller that names the states it answers, a period is stepped only once
+        the current state is answered, or once the answer is :data:`GRACE_PERIODS` periods
+        overdue (then it counts as late): a timer that fires late no longer makes the
+        simulator integrate states nobody could answer yet, and an answer that comes while
+        the simulator is behind steps it at once."""
         if self.mode != 'real_time' or self.holding() or self.paused(sim_ns):
             return 0
         if self.anchor is None:
@@ -219,7 +228,13 @@ class Timekeeper:
             self.behind_s += (due - MAX_CATCH_UP) * self.period_ns * 1e-9
             due = MAX_CATCH_UP
             self.anchor = (wall_ns, sim_ns + due * self.period_ns)
-        return max(due, 0)
+        if due <= 0:
+            return 0
+        if self.tagged:
+            answered = self.answered_stamp is not None and self.answered_stamp >= sim_ns
+            overdue = target - (sim_ns + self.period_ns)  # [sim ns] past this period's end
+            return 1 if answered or overdue >= GRACE_PERIODS * self.period_ns else 0
+        return due
 
     def before_advance(self, sim_ns: int) -> bool:
         """real_time: the period starting at ``sim_ns`` is about to be integrated; returns

@@ -72,6 +72,24 @@ def _make_accel(k: tuple[float, ...], cos: Callable, sin: Callable) -> Callable:
     return accel
 
 
+def _make_inverse(k: tuple[float, ...], cos: Callable, sin: Callable) -> Callable:
+    """tau(q1, q2, qd1, qd2, qdd1, qdd2) = D qdd + C qd + g + B qd for one parameter set
+    ``k``, term for term the left-hand side of :func:`_make_accel`'s equation."""
+    a, b, d, g1, g2, b1, b2 = k
+
+    def inverse(q1, q2, qd1, qd2, a1, a2):
+        c2 = cos(q2)
+        bs2 = b * sin(q2)
+        gc12 = g2 * cos(q1 + q2)
+        d12 = d + b * c2
+        t1 = ((a + 2.0 * b * c2) * a1 + d12 * a2 - bs2 * qd2 * (2.0 * qd1 + qd2)
+              + g1 * cos(q1) + gc12 + b1 * qd1)
+        t2 = d12 * a1 + d * a2 + bs2 * qd1 * qd1 + gc12 + b2 * qd2
+        return t1, t2
+
+    return inverse
+
+
 def _fast_floats(q: object, qd: object, tau: object) -> list[float] | None:
     """The hot path: three finite (2,) float arrays as six floats, else None (the caller
     then takes the validating path, which names any bad argument)."""
@@ -138,6 +156,7 @@ class TwoLinkArm:
         object.__setattr__(self, '_k', k)
         object.__setattr__(self, '_acc_float', _make_accel(k, math.cos, math.sin))
         object.__setattr__(self, '_acc_array', _make_accel(k, np.cos, np.sin))
+        object.__setattr__(self, '_tau_float', _make_inverse(k, math.cos, math.sin))
 
     #: The constructor arguments, which are also the robot parameters' names.
     PARAMETERS = ('link_lengths', 'com_distances', 'link_masses', 'link_inertias', 'gravity',
@@ -217,7 +236,16 @@ class TwoLinkArm:
         return np.stack(np.broadcast_arrays(*out), -1)
 
     def inverse_dynamics(self, q, qd, qdd) -> np.ndarray:
-        """tau [N m] = D qdd + C qd + g + B qd for q, qd, qdd of shape (2,) or (..., 2)."""
+        """tau [N m] = D qdd + C qd + g + B qd for q, qd, qdd of shape (2,) or (..., 2).
+
+        One state takes a pure-float path (what the computed-torque controller calls every
+        tick); a batch the array path below."""
+        x = _fast_floats(q, qd, qdd)
+        if x is not None:
+            return np.array(self._tau_float(*x))
+        s = (_pair('q', q), _pair('qd', qd), _pair('qdd', qdd))
+        if None not in s:
+            return np.array(self._tau_float(*s[0], *s[1], *s[2]))
         qdd = state_array('qdd', qdd, 2)
         return (np.einsum('...ij,...j->...i', self.mass_matrix(q), qdd)
                 + np.einsum('...ij,...j->...i', self.coriolis_matrix(q, qd), qd)

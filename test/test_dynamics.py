@@ -117,6 +117,20 @@ def test_closed_form_christoffel_and_newton_euler_agree_at_random_states_and_par
         assert err < AGREE, f'{name}: worst relative disagreement {err:.2e} >= {AGREE:g}'
 
 
+def test_single_state_inverse_dynamics_equals_the_batch_path():
+    """The controller's per-tick float path and the array path are one formula."""
+    rng = np.random.default_rng(11)
+    arm = TwoLinkArm(**random_chain_params(rng, 2))
+    q, qd, qdd = (rng.uniform(-4, 4, (200, 2)) for _ in range(3))
+    batch = arm.inverse_dynamics(q, qd, qdd)
+    single = np.array([arm.inverse_dynamics(*x) for x in zip(q, qd, qdd)])
+    lists = np.array([arm.inverse_dynamics(*(v.tolist() for v in x))
+                      for x in zip(q, qd, qdd)])
+    scale = np.maximum(1.0, np.abs(batch))
+    assert (np.abs(single - batch) / scale).max() < 1e-14
+    assert np.array_equal(single, lists)
+
+
 def test_closed_form_matches_newton_euler_batched_at_random_states():
     rng = np.random.default_rng(7)
     params = random_chain_params(rng, 2)

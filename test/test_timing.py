@@ -126,6 +126,23 @@ def test_real_time_late_periods_with_tagged_answers():
     assert w is not None and w.periods == 0 and w.wall_s == pytest.approx(1.0)
 
 
+def test_real_time_waits_up_to_one_period_for_the_answer_then_steps_late():
+    k = Timekeeper(mode='real_time', period_ns=P)
+    k.on_command(answers=0, sim_ns=0, wall_ns=0)
+    k.periods_due(0, wall_ns=0)  # anchors
+    assert k.periods_due(0, wall_ns=10 * MS) == 1, 'state 0 answered: step'
+    k.before_advance(0)
+    assert k.periods_due(P, wall_ns=25 * MS) == 0, 'due, but its answer may still come'
+    k.on_command(answers=P, sim_ns=P, wall_ns=26 * MS)
+    assert k.periods_due(P, wall_ns=26 * MS) == 1, 'the answer steps it at once'
+    assert not k.before_advance(P)
+    assert k.periods_due(2 * P, wall_ns=29 * MS) == 0, 'not due yet'
+    assert k.periods_due(2 * P, wall_ns=39 * MS) == 0, 'due, within the grace period'
+    assert k.periods_due(2 * P, wall_ns=40 * MS) == 1, 'a period overdue: step anyway'
+    assert k.before_advance(2 * P), '... and count it late'
+    assert (k.periods, k.late_periods) == (3, 1)
+
+
 def test_real_time_late_periods_with_untagged_commands():
     k = Timekeeper(mode='real_time', period_ns=P)
     k.on_command(answers=None, sim_ns=0, wall_ns=0)
