@@ -44,9 +44,10 @@ arrival). Publishes effort_controller/commands (std_msgs/Float64MultiArray, N m)
 arm_controller/reference (JointState: desired position and velocity, commanded effort,
 stamped like the state it answers) and arm_controller/trajectory_status
 (diagnostic_msgs/DiagnosticStatus: OK "accepted" or WARN "refused: <reason>" for each
-trajectory received, key stamp_ns = its header stamp). Until the first trajectory it
-holds the first measured position. Laws: pd, pd_gravity, computed_torque, pid. Reports
-on /diagnostics.
+trajectory received, WARN "dropped: <reason>" when a time jump cuts the one in progress, with
+keys at_ns and q = the state it holds from then on; key stamp_ns = its header stamp).
+Until the first trajectory it holds the first measured position. Laws: pd, pd_gravity,
+computed_torque, pid. Reports on /diagnostics.
 
 A trajectory that arrives before the first joint state waits for it (refused after 5 s of
 wall time without one: a new process may take a second to be matched with the
@@ -140,6 +141,7 @@ class ControllerNode(Node):
         self.answer: tuple[int, np.ndarray, Float64MultiArray, bool] | None = None
         self.resent = 0
         self.early: tuple[JointTrajectory, float] | None = None  # before any state (wall)
+        self.active_msg: JointTrajectory | None = None  # the accepted trajectory, if any
         self.stale = False
         self.saturations = 0
         if p['update_on'] == 'timer':
@@ -224,9 +226,10 @@ class ControllerNode(Node):
         self.diag.event('trajectory_accepted', text, start_time=f'{start:.9f}',
                         duration=f'{traj.duration:.9f}', points=len(msg.points))
         self._status(msg, DiagnosticStatus.OK, f'accepted: {text}', start)
+        self.active_msg = msg
 
     def _status(self, msg: JointTrajectory, level: bytes, text: str,
-                start: float | None) -> None:
+                start: float | None, **values) -> None:
         """Say on arm_controller/trajectory_status what became of ``msg``: the topic
         interface has no reply of its own, and a sender must not take 'published' for
         'executed' (the planner re-sends until it reads one)."""
@@ -236,6 +239,7 @@ class ControllerNode(Node):
                          KeyValue(key='points', value=str(len(msg.points)))]
         if start is not None:
             status.values.append(KeyValue(key='start_time', value=f'{start:.9f}'))
+        status.values += [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         self.status_pub.publish(status)
 
     def _refuse(self, msg: JointTrajectory, reason: str, start_time: float | None = None):
@@ -251,10 +255,18 @@ class ControllerNode(Node):
 
     def _control(self, stamp_ns: int | None) -> None:
         t, q, qd = self.latest
-        step = self.core.update(t, q, qd)
+        core = self.core
+        moving = (self.active_msg is not None and core.last_time is not None
+                  and core.last_time < core.start + core.trajectory.duration)
+        step = core.update(t, q, qd)
         if step.jump:
             self.diag.problem('time_jump', f'{step.jump}: trajectory dropped, holding the '
                               f'measured position {q.round(4).tolist()} rad')
+            if moving:  # a motion in progress: tell its sender, who may plan it again
+                dropped, self.active_msg = self.active_msg, None
+                self._status(dropped, DiagnosticStatus.WARN, f'dropped: {step.jump}', None,
+                             at_ns=stamp_ns if stamp_ns is not None else int(round(t * 1e9)),
+                             q=q.tolist())
         cmd = step.command
         out = Float64MultiArray(data=cmd.tau.tolist())
         if stamp_ns is not None:  # lockstep: name the state this command answers

@@ -9,6 +9,7 @@ parameters are read-only.
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from typing import Any
@@ -63,11 +64,11 @@ fastest duration that fits (feasibility stretch) or refused (feasibility refuse)
 Unreachable or near-singular goals, goals in another frame, non-finite goals and goals
 before any joint state are refused on /diagnostics; nothing is published for them. When
 simulated time goes back or jumps during a planned motion (a restarted simulator, a reset),
-the controller drops the motion and the planner reports the goal as interrupted (send it
-again: it is planned from the new state). A trajectory is re-sent (up to 5 times, 1 s
-apart, planned again from the latest state) until the controller confirms it on
-arm_controller/trajectory_status; a refusal
-there, or no confirmation, is reported as goal_refused_by_controller or goal_unsent.
+the controller drops the motion, says so on arm_controller/trajectory_status with the state
+it now holds, and the planner plans the goal again from that state (event replanned). A
+trajectory is re-sent (up to 5 times, 1 s apart, planned again from the latest state)
+until the controller confirms it on arm_controller/trajectory_status; a refusal there, or
+no confirmation, is reported as goal_refused_by_controller or goal_unsent.
 '''
 
 PLANNER_PARAMS: tuple[ParamSpec, ...] = (
@@ -175,7 +176,8 @@ class PlannerNode(Node):
         self.limits = np.array(p['effort_limits'], dtype=float)
         self.q: np.ndarray | None = None
         self.t_ns = 0  # simulated time of self.q
-        self.active: tuple[int, tuple[float, float]] | None = None  # (end ns, goal xy)
+        # the last trajectory a controller accepted: (its stamp ns, goal xy)
+        self.active: tuple[int, tuple[float, float]] | None = None
         self.plans = 0
         self.traj_pub = self.create_publisher(JointTrajectory,
                                               'arm_controller/joint_trajectory', 10)
@@ -231,29 +233,11 @@ class PlannerNode(Node):
                 return
             if self.q is None:
                 self.diag.set('OK', 'ready: waiting for goal_pose')
-            t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-            self._check_jump(t_ns)
-            self.q, self.t_ns = q, t_ns
+            self.q = q
+            self.t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         except Exception as exc:  # noqa: BLE001 -- never die on a message
             self.diag.problem('internal_error', f'joint_states handling failed: {exc!r}',
                               'ERROR')
-
-    def _check_jump(self, t_ns: int) -> None:
-        """A motion in progress when simulated time goes back or leaps is dropped by the
-        controller: say so (the next goal is planned from the new state)."""
-        if self.q is None or self.active is None:
-            return
-        end, goal = self.active
-        if self.t_ns >= end:
-            self.active = None
-            return
-        if t_ns < self.t_ns or t_ns - self.t_ns > 1_000_000_000:
-            self.active = None
-            self.diag.problem('goal_interrupted', f'goal ({goal[0]:.4f}, {goal[1]:.4f}) m '
-                              f'interrupted: simulated time jumped from '
-                              f'{self.t_ns * 1e-9:.3f} s to {t_ns * 1e-9:.3f} s during its '
-                              'motion, and the controller dropped it; send the goal again to '
-                              'plan it from the new state', goal_x=goal[0], goal_y=goal[1])
 
     def _on_goal(self, msg: PoseStamped) -> None:
         try:
@@ -280,27 +264,37 @@ class PlannerNode(Node):
             return
         self._plan((float(goal[0]), float(goal[1])), sends=0)
 
-    def _plan(self, goal: tuple[float, float], sends: int) -> None:
-        """Plan ``goal`` from the latest state and queue it for sending (``sends`` = how
-        often this goal's trajectory went out already)."""
+    def _plan(self, goal: tuple[float, float], sends: int,
+              start: tuple[np.ndarray, int] | None = None) -> None:
+        """Plan ``goal`` from ``start`` = (q [rad], the stamp to give the trajectory [ns]:
+        where it starts, 0 = on arrival), by default the latest joint state and its time,
+        and queue it for sending (``sends`` = how often this goal's
+        trajectory went out already)."""
+        q, t_ns = start if start is not None else (self.q, self.t_ns)
         try:
-            plan = plan_goal(self.arm, self.limits, self.q, np.array(goal),
+            plan = plan_goal(self.arm, self.limits, q, np.array(goal),
                              settings_from(self.params))
         except (PlanningError, ValueError) as exc:
             self.diag.problem('goal_refused', f'goal_pose refused: {exc}')
             return
-        self.pending = (plan, time.monotonic() + CONTROLLER_WAIT, self.t_ns, goal, sends)
+        self.pending = (plan, time.monotonic() + CONTROLLER_WAIT, t_ns, goal, sends)
         self._send_pending()
 
     def _on_trajectory_status(self, status: DiagnosticStatus) -> None:
-        """The controller's word on a trajectory: the one we sent is settled."""
+        """The controller's word on a trajectory: the one we sent is settled, or the one
+        it was executing was dropped by a time jump (then it is planned again from the
+        state the controller holds)."""
         values = {kv.key: kv.value for kv in status.values}
+        if status.message.startswith('dropped'):
+            self._replan_dropped(values, status.message)
+            return
         sent = self.sent
         if sent is None or values.get('stamp_ns') != str(sent['stamp']):
             return
         self.sent = None
         level = status.level if isinstance(status.level, int) else status.level[0]
         if level == 0:
+            self.active = (sent['stamp'], sent['goal'])
             self.diag.event('plan_accepted', f"controller: {status.message}",
                             start_time=f"{sent['stamp'] * 1e-9:.9f}")
             return
@@ -309,6 +303,29 @@ class PlannerNode(Node):
         self.diag.problem('goal_refused_by_controller', f'goal ({goal[0]:.4f}, '
                           f'{goal[1]:.4f}) m: the controller {status.message}',
                           goal_x=goal[0], goal_y=goal[1])
+
+    def _replan_dropped(self, values: dict[str, str], message: str) -> None:
+        active = self.active
+        if active is None or values.get('stamp_ns') != str(active[0]):
+            return  # not ours, or not the one in progress
+        self.active = None
+        try:
+            q = np.array(json.loads(values['q']), dtype=float).reshape(len(self.joint_names))
+            at_ns = int(values['at_ns'])
+        except (KeyError, ValueError, TypeError) as exc:
+            self.diag.problem('goal_interrupted', f'goal ({active[1][0]:.4f}, '
+                              f'{active[1][1]:.4f}) m interrupted ({message}) and the '
+                              f'controller did not say where it holds the arm ({exc!r}): send '
+                              'it again', goal_x=active[1][0], goal_y=active[1][1])
+            return
+        goal = active[1]
+        self.diag.event('replanned', f'goal ({goal[0]:.4f}, {goal[1]:.4f}) m planned again '
+                        f'from q = {q.round(4).tolist()} rad, held since t = '
+                        f'{at_ns * 1e-9:.3f} s: the controller {message}',
+                        goal_x=goal[0], goal_y=goal[1])
+        # Stamped zero (start on arrival): the controller holds exactly that q until the
+        # plan comes, so it starts where the arm is, whenever it arrives.
+        self._plan(goal, sends=0, start=(q, 0))
 
     def _confirm_sent(self) -> None:
         """Send the goal again until a controller confirms its trajectory: a publish can
@@ -350,7 +367,6 @@ class PlannerNode(Node):
         self.traj_pub.publish(msg)
         self.sent = {'stamp': start_ns, 'at': time.monotonic(), 'sends': sends + 1,
                      'goal': goal}
-        self.active = (start_ns + int(round(float(plan.times[-1]) * 1e9)), goal)
         sec, nanosec = divmod(start_ns, 1_000_000_000)
         self.path_pub.publish(path_message(plan, self.params['base_frame'],
                                            Time(sec=sec, nanosec=nanosec)))

@@ -151,6 +151,21 @@ class Ros:
         return self.call(SetParameters, f'{node}/set_parameters',
                          set_parameters_request(values)).results
 
+    def pause_simulator_now(self, diags: list, node: str = '/simulator') -> float:
+        """Pause a lockstep simulator where it is and return that simulated time [s], as
+        the simulator reports it (``paused_at``): lockstep runs seconds ahead of what the
+        test has read, so a pause time computed from the last state read may be past.
+        ``diags`` collects /diagnostics."""
+        n = len(diags)
+
+        def reported():
+            return [kv.value for d in diags[n:] for s in d.status if s.name == node
+                    for kv in s.values if kv.key == 'paused_at' and kv.value]
+
+        assert self.set_params(node, pause_at=0.0)[0].successful
+        self.wait_for(reported, what=f'{node} to report where it paused')
+        return float(reported()[-1])
+
     def reset(self) -> None:
         for entity in self._entities:
             if hasattr(entity, 'topic_name') and hasattr(entity, 'handle'):

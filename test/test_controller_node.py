@@ -144,9 +144,7 @@ def test_a_multi_point_trajectory_is_tracked_within_the_derived_bound(ros, suite
     # Lockstep runs faster than the trajectory travels: pause the simulation so the
     # trajectory is accepted before its start time comes.
     diags = ros.collect(DiagnosticArray, '/diagnostics')
-    pause = round(stamp(states[-1]) + 0.2, 2)
-    assert ros.set_params('/simulator', pause_at=pause)[0].successful
-    run_until(ros, states, pause)
+    pause = ros.pause_simulator_now(diags)
     start = pause + 0.5
     send_until_accepted(ros, pub, diags, trajectory(points, start=start))
     assert ros.set_params('/simulator', pause_at=-1.0)[0].successful
@@ -220,9 +218,7 @@ def send_until_accepted(ros, pub, diags, msg) -> None:
 def start_motion(ros, states, pub, diags, pause_in: float = 1.0):
     """A 2 s quintic move from Q0 to (0.3, 0.6) accepted at a pause, then run until
     ``pause_in`` s into it and pause there; returns the plan's start time [s]."""
-    pause = round(stamp(states[-1]) + 0.2, 2)
-    assert ros.set_params('/simulator', pause_at=pause)[0].successful
-    run_until(ros, states, pause)
+    pause = ros.pause_simulator_now(diags)
     send_until_accepted(ros, pub, diags,
                         trajectory([(2.0, [0.3, 0.6], [0, 0], [0, 0])], start=pause))
     assert ros.set_params('/simulator', pause_at=pause + pause_in)[0].successful

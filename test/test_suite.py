@@ -61,7 +61,7 @@ def move(ros, states, trajs, goals, target, settle: float = 1.0):
     n = len(trajs)
     goals.publish(goal(*target))
     ros.wait_for(lambda: len(trajs) > n, what='a plan')
-    t0 = stamp(states[-1])
+    t0 = stamp(trajs[-1]) or stamp(states[-1])  # the plan starts at its stamp
     end = trajs[-1].points[-1].time_from_start
     duration = end.sec + end.nanosec * 1e-9
     k = len(states)
@@ -118,16 +118,20 @@ def test_nodes_started_in_a_namespace_run_on_their_own_simulators_clock(ros, lau
     start_suite(launch, ns='/arm3')
     connect(ros, '/arm3/')
 
+    def subscribed(name: str) -> list[str]:
+        try:
+            return [t for t, _ in ros.node.get_subscriber_names_and_types_by_node(name,
+                                                                                  '/arm3')]
+        except Exception:  # noqa: BLE001 -- rclpy's NodeNameNonExistentError: not seen yet
+            return []
+
     def clock_subscribers():
-        return {name for name in ('controller', 'planner')
-                if ('/arm3/clock', ['rosgraph_msgs/msg/Clock']) in
-                ros.node.get_subscriber_names_and_types_by_node(name, '/arm3')}
+        return {name for name in ('controller', 'planner') if '/arm3/clock' in subscribed(name)}
 
     ros.wait_for(lambda: clock_subscribers() == {'controller', 'planner'},
                  what='controller and planner to subscribe /arm3/clock')
     for name in ('controller', 'planner'):
-        topics = [t for t, _ in ros.node.get_subscriber_names_and_types_by_node(name, '/arm3')]
-        assert '/clock' not in topics, f'/arm3/{name} does not listen to the root /clock'
+        assert '/clock' not in subscribed(name), f'/arm3/{name} does not listen to /clock'
     clocks = ros.collect(Clock, '/arm3/clock')
     ros.wait_for(lambda: clocks and clocks[-1].clock.sec + clocks[-1].clock.nanosec > 0,
                  what='the simulated clock to run on /arm3/clock')
@@ -225,3 +229,40 @@ def test_a_goal_sent_right_after_a_controller_restart_is_executed(ros, launch):
                      what='the motion to finish')
         reached = ARM.forward_kinematics(np.array(states[-1].position))
         assert np.hypot(*(reached - target)) < 1e-3, f'goal {k} reached'
+
+
+def test_a_motion_cut_by_a_simulator_restart_is_planned_again_and_finished(ros, launch):
+    import signal
+    start_suite(launch)
+    states, trajs, goals = connect(ros)
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+
+    def planner_event(kind):
+        return [v for d in diags for s in d.status if s.name == '/planner'
+                for v in [{kv.key: kv.value for kv in s.values}] if v.get('event') == kind]
+
+    pause = ros.pause_simulator_now(diags)
+    goals.publish(goal(*PF))
+    ros.wait_for(lambda: planner_event('plan_accepted'), what='the plan accepted')
+    assert ros.set_params('/simulator', pause_at=pause + 0.6)[0].successful
+    ros.wait_for(lambda: stamp(states[-1]) >= pause + 0.6 - 1e-9, what='half the motion')
+    assert np.abs(np.array(states[-1].velocity)).max() > 0.3, 'cut mid-motion'
+    simulator = next(p for p in launch.procs if p.name == 'simulator')
+    simulator.stop(signal.SIGKILL)
+    k = len(states)
+    launch('simulator', params_file=CONFIG, params={'timing_mode': 'lockstep'})
+    replanned = ros.wait_for(lambda: planner_event('replanned'), timeout=30,
+                             what='the planner to plan the goal again')[0]
+    assert float(replanned['goal_x']) == PF[0] and float(replanned['goal_y']) == PF[1]
+
+    def new_run():  # from the first step back in time on
+        first = next((i for i in range(max(k, 1), len(states))
+                      if stamp(states[i]) < stamp(states[i - 1])), None)
+        return None if first is None else states[first:]
+
+    def reached():
+        run = new_run()
+        return run and np.hypot(*(tip(run)[-1] - PF)) < 1e-3 and (
+            np.abs(run[-1].velocity).max() < 1e-3)
+
+    ros.wait_for(reached, timeout=60, what='the new arm to reach the goal')
