@@ -21,7 +21,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from arm_control.core import ControllerCore
 from arm_control.laws import LAWS, ControlLaw, Gains
-from arm_control.trajectory import TrajectoryError, TrajectoryPoint
+from arm_control.trajectory import StaleTrajectoryError, TrajectoryError, TrajectoryPoint
 from arm_dynamics.timing import answer_tag
 from arm_dynamics.two_link import TwoLinkArm
 from arm_sim.params import ROBOT_PARAMS, ParamSpec
@@ -140,6 +140,7 @@ class ControllerNode(Node):
         # a simulator was matched when it went out
         self.answer: tuple[int, np.ndarray, Float64MultiArray, bool] | None = None
         self.resent = 0
+        self.linked = False  # a state after one we answered came: the simulator hears us
         self.early: tuple[JointTrajectory, float] | None = None  # before any state (wall)
         self.active_msg: JointTrajectory | None = None  # the accepted trajectory, if any
         self.stale = False
@@ -195,10 +196,15 @@ class ControllerNode(Node):
         if self.params['update_on'] == 'joint_states':
             stamp_ns = _stamp_ns(msg)
             answer = self.answer
+            if answer is not None and stamp_ns > answer[0]:
+                self.linked = True
             if answer is not None and answer[0] == stamp_ns and np.array_equal(answer[1], q):
                 self.resent += 1  # the same state again: its answer was lost or early
                 self.cmd_pub.publish(answer[2])
-                if answer[3]:  # it went to a matched simulator: lost on the way
+                # Before the simulator ever took an answer of ours, a re-send is the
+                # hand-shake of discovery (its subscription may match us after our publisher
+                # matched it), not a loss.
+                if answer[3] and self.linked:  # lost on the way
                     self.diag.problem('answer_resent', f'the state at t={self.latest[0]:.3f}'
                                       ' s came again (the simulator got no answer to it): '
                                       'the same command re-sent')
@@ -219,7 +225,8 @@ class ControllerNode(Node):
         try:
             traj = self.core.set_trajectory(msg.joint_names, points, start, q, qd, now=t_now)
         except TrajectoryError as exc:
-            self._refuse(msg, f'{exc}; keeping the current reference', start_time=start)
+            self._refuse(msg, f'{exc}; keeping the current reference', start_time=start,
+                         stale=isinstance(exc, StaleTrajectoryError))
             return
         text = (f'{len(msg.points)} point(s) over {traj.duration:.3f} s from t={start:.3f} s')
         self.get_logger().info(f'new trajectory: {text}')
@@ -242,11 +249,13 @@ class ControllerNode(Node):
         status.values += [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         self.status_pub.publish(status)
 
-    def _refuse(self, msg: JointTrajectory, reason: str, start_time: float | None = None):
+    def _refuse(self, msg: JointTrajectory, reason: str, start_time: float | None = None,
+                stale: bool = False):
         self.diag.problem('rejected_trajectory', f'trajectory refused: {reason}',
                           **({} if start_time is None else
                              {'start_time': f'{start_time:.9f}'}))
-        self._status(msg, DiagnosticStatus.WARN, f'refused: {reason}', start_time)
+        self._status(msg, DiagnosticStatus.WARN, f'refused: {reason}', start_time,
+                     stale=str(stale).lower())
 
     # ------------------------------------------------------------------ output
     def _on_timer(self) -> None:

@@ -20,8 +20,8 @@ import numpy as np
 
 from arm_control.laws import Command, ControlLaw
 from arm_control.trajectory import (
+    StaleTrajectoryError,
     Trajectory,
-    TrajectoryError,
     TrajectoryPoint,
     validate_trajectory,
 )
@@ -88,7 +88,7 @@ class ControllerCore:
         times, pos, vel, acc = validate_trajectory(joint_names, points, self.joint_names)
         now = start if now is None else now
         if start + times[-1] < now:
-            raise TrajectoryError(
+            raise StaleTrajectoryError(
                 f'trajectory ends in the past: it starts at t={start:.3f} s and ends at '
                 f't={start + times[-1]:.3f} s, but the state is at t={now:.3f} s')
         self.trajectory = Trajectory(q, qd, times, pos, vel, acc)

@@ -21,6 +21,11 @@ class TrajectoryError(ValueError):
     """A trajectory that must not replace the current reference; the message says why."""
 
 
+class StaleTrajectoryError(TrajectoryError):
+    """A trajectory that ends before the current simulated time (planned from a state the
+    simulation has since left behind: planning it again from the latest state helps)."""
+
+
 @dataclass(frozen=True)
 class TrajectoryPoint:
     """One waypoint as received: ``time_from_start`` [s] and per-joint arrays in the

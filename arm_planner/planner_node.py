@@ -300,6 +300,13 @@ class PlannerNode(Node):
             return
         self.active = None
         goal = sent['goal']
+        if values.get('stale') == 'true' and sent['sends'] < SENDS and self.q is not None:
+            # Planned from a state the (lockstep) simulation has since left behind while
+            # the trajectory found its controller: plan it again from the latest state.
+            self.get_logger().info(f'the controller {status.message}: planning {goal} again '
+                                   'from the latest state')
+            self._plan(goal, sends=sent['sends'])
+            return
         self.diag.problem('goal_refused_by_controller', f'goal ({goal[0]:.4f}, '
                           f'{goal[1]:.4f}) m: the controller {status.message}',
                           goal_x=goal[0], goal_y=goal[1])

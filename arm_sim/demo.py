@@ -115,14 +115,21 @@ class Demo:
         self._start('simulator', timing_mode='lockstep', pause_at=0.05)
         self._start('planner')
         client = SuiteClient(self.domain)
+        codes = {}
         try:
             self._drive(client)
+            # The simulation stands paused at its end: stop everything but the recorder,
+            # then let the recorder take what is still on its way to it.
+            codes = {p.name: p.stop(signal.SIGINT) for p in self.procs
+                     if p.name != 'recorder'}
+            self._drain_recorder(client)
             self.warnings += suite_warnings(client)
             for w in self.warnings:
                 self.echo(f'warning: {w}')
         finally:
             client.close()
-            codes = {p.name: p.stop(signal.SIGINT) for p in self.procs}
+            codes.update({p.name: p.stop(signal.SIGINT) for p in self.procs
+                          if p.name not in codes})
         bad = {n: c for n, c in codes.items() if c not in (0, -signal.SIGINT)}
         if bad:
             raise SuiteError(f'processes did not stop cleanly: {bad}; see {self.out}/logs')
@@ -210,6 +217,25 @@ class Demo:
                              f"the controller's answer at {t:.2f} s", self._alive)
             except SuiteError as exc:  # seen once under load: the answer never reached us
                 self.warnings.append(f'{exc}; this run may not repeat exactly')
+
+    def _drain_recorder(self, c: SuiteClient, topics=('joint_states',
+                                                      'effort_controller/commands',
+                                                      'arm_controller/reference')) -> None:
+        """Wait until two successive recorder reports show the same counts for the run's
+        topics, nothing being published any more: the recorder has every message that
+        reached it (its queue is drained)."""
+        keys = [f'received /{t}' for t in topics]
+        since = len(c.diagnostic_values)
+
+        def settled() -> bool:
+            counts = [tuple(v.get(k) for k in keys) for n, v in c.diagnostic_values[since:]
+                      if n == 'recorder' and 'received' in v]
+            return len(counts) >= 2 and counts[-1] == counts[-2]
+
+        try:
+            c.spin_until(settled, 15.0, 'the recorder to take the last messages')
+        except SuiteError as exc:
+            self.warnings.append(f'{exc}: the bag may lack the last messages')
 
     @staticmethod
     def _paused_at(c: SuiteClient, t: float) -> bool:
