@@ -4,6 +4,7 @@ with the controller stalled mid-task."""
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -52,7 +53,7 @@ def children(pid: int, name: str) -> list[int]:
 
 def run_demo_with_stalled_controller(ros, out: Path, domain: int, at: float = 3.0):
     """The demo, with its controller SIGSTOPped once simulated time passes ``at`` s (in
-    the slow line) until the simulator has reported waiting 1.5 s for it, then SIGCONT."""
+    the slow line) until the simulator has reported waiting 2 s for it, then SIGCONT."""
     states = ros.collect(JointState, 'joint_states', qos=1000)
     diags = ros.collect(DiagnosticArray, '/diagnostics')
     proc = subprocess.Popen(demo_command(out, domain), stdout=subprocess.PIPE,
@@ -62,15 +63,14 @@ def run_demo_with_stalled_controller(ros, out: Path, domain: int, at: float = 3.
                      what=f'the demo to reach t = {at} s')
         controller = ros.wait_for(lambda: children(proc.pid, 'controller'),
                                   what='the controller process')[0]
-        import os
         os.kill(controller, signal.SIGSTOP)
         try:
             def waited() -> float:
                 return max((float(kv.value) for d in diags for s in d.status
                             if s.name == '/simulator' for kv in s.values
                             if kv.key == 'waited_wall'), default=0.0)
-            ros.wait_for(lambda: waited() >= 1.5, timeout=30,
-                         what='the simulator to report waiting 1.5 s for the controller')
+            ros.wait_for(lambda: waited() >= 2.0, timeout=30,
+                         what='the simulator to report waiting 2 s for the controller')
             t_stall = stamp_of(states[-1])
         finally:
             os.kill(controller, signal.SIGCONT)
