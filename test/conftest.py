@@ -31,13 +31,31 @@ def proc_dirs():
     return (p for p in Path('/proc').iterdir() if p.name.isdigit())
 
 
+# Every process this session starts (nodes, and the nodes of the demo and bringup it runs)
+# inherits this mark, so the leftover checks below see this session's processes only and
+# sessions running side by side do not fail each other.
+os.environ['ARM_SIM_TEST_SESSION'] = str(os.getpid())
+SESSION_MARK = f'ARM_SIM_TEST_SESSION={os.getpid()}'.encode()
+
+
+def ours(proc: Path) -> bool:
+    """Whether the process was started by this test session (it carries the mark)."""
+    try:
+        return SESSION_MARK in (proc / 'environ').read_bytes().split(b'\0')
+    except OSError:
+        return False
+
+
 def node_processes() -> set[int]:
-    """PIDs of running arm_sim node processes (console scripts or python -m modules)."""
+    """PIDs of running arm_sim node processes this session started (console scripts or
+    python -m modules)."""
     pids = set()
     for proc in proc_dirs():
         try:
             argv = (proc / 'cmdline').read_bytes().split(b'\0')
         except OSError:
+            continue
+        if not ours(proc):
             continue
         words = [a.decode(errors='replace') for a in argv if a]
         if any(Path(w).name in NODE_EXES or w.endswith('_node') for w in words[:3]):
@@ -57,10 +75,13 @@ def own_shm_files() -> set[str]:
             if '/dev/shm/fastrtps_' in line}
 
 
-def shm_holders() -> set[str]:
-    """Fast DDS files some live process has open or mapped."""
+def shm_holders(session_only: bool = False) -> set[str]:
+    """Fast DDS files some live process (of this session, with ``session_only``) has open or
+    mapped."""
     held = set()
     for proc in proc_dirs():
+        if session_only and not ours(proc):
+            continue
         try:
             held |= {Path(line.split()[-1]).name for line in
                      (proc / 'maps').read_text().splitlines() if '/dev/shm/fastrtps_' in line}
@@ -88,8 +109,8 @@ def leaves_nothing_behind():
     held = shm_holders()
     for name in shm_files() - shm_before - held:
         Path('/dev/shm', name).unlink(missing_ok=True)
-    foreign = (shm_files() - shm_before) - own_shm_files()
-    assert not foreign, f'/dev/shm files held by other processes: {sorted(foreign)}'
+    kept = (shm_files() - shm_before) & shm_holders(session_only=True) - own_shm_files()
+    assert not kept, f'/dev/shm files still held by processes of this session: {sorted(kept)}'
 
 
 class Ros:
