@@ -7,8 +7,11 @@ run time; :meth:`ParamSpec.check` returns the reason a value is refused, or None
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
+
+import yaml
 
 
 @dataclass(frozen=True)
@@ -98,6 +101,82 @@ class ParamSpec:
         if self.maximum is not None and item > self.maximum:
             return f'{name} must be <= {self.maximum:g}{unit}, got {item!r}'
         return None
+
+    def as_declared(self, value: Any) -> Any:
+        """``value`` with integers given for a double (or doubles) parameter made floats, as
+        a user typing ``5`` or ``[200, 100]`` means them; anything else unchanged (a wrong
+        type is :meth:`check`'s to refuse). An unset value (None, what an empty list in a
+        params file loads as) is the default of a parameter whose default is empty."""
+        if value is None and self.kind in ('doubles', 'strings') and self.default == []:
+            return []
+        if self.kind == 'double' and _is_int(value):
+            return float(value)
+        if (self.kind == 'doubles' and isinstance(value, Sequence)
+                and not isinstance(value, str) and any(_is_int(v) for v in value)
+                and all(_is_int(v) or isinstance(v, float) for v in value)):
+            return [float(v) for v in value]
+        return value
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def command_line_parameters(argv: Sequence[str], node_name: str,
+                            fully_qualified_name: str) -> dict[str, Any]:
+    """The ``-p [node:]name:=value`` rules in ``argv``'s ``--ros-args`` sections that apply
+    to a node, the later winning, with values read as YAML as rcl reads them.
+
+    rcl files a bare ``-p`` rule under the ``/**`` wildcard, and rclpy lets any params-file
+    entry naming the node beat a wildcard, so on its own ``-p law:=pid --params-file
+    config/arm.yaml`` keeps the file's law. The nodes apply these rules last instead:
+    a value typed on the command line is the one the user means.
+    """
+    rules: dict[str, Any] = {}
+    in_ros_args = False
+    it = iter(argv)
+    for arg in it:
+        if arg == '--ros-args':
+            in_ros_args = True
+        elif arg == '--':
+            in_ros_args = False
+        elif in_ros_args and arg in ('-p', '--param'):
+            rule = next(it, '')
+            if ':=' not in rule:
+                continue
+            target, text = rule.split(':=', 1)
+            node, _, name = target.rpartition(':')
+            if node and node not in (node_name, fully_qualified_name):
+                continue
+            rules[name] = _yaml_value(text)
+    return rules
+
+
+def _yaml_value(text: str) -> Any:
+    """A command-line parameter value as rcl reads it: YAML, where an unquoted ``1e3`` is a
+    number (PyYAML alone reads it as a string) and a quoted ``"5"`` a string."""
+    try:
+        node = yaml.compose(text)
+    except yaml.YAMLError:
+        return text
+    if node is None:
+        return None
+    items = node.value if isinstance(node, yaml.SequenceNode) else None
+    if items is None:
+        return _scalar(node)
+    return [_scalar(item) for item in items]
+
+
+def _scalar(node: yaml.Node) -> Any:
+    if not isinstance(node, yaml.ScalarNode):
+        return yaml.safe_load(yaml.serialize(node))
+    value = yaml.safe_load(yaml.serialize(node))
+    if isinstance(value, str) and node.style is None:
+        try:
+            return float(value)
+        except ValueError:
+            return value
+    return value
 
 
 def _pair(name: str, default: tuple, description: str, unit: str, **kw) -> ParamSpec:

@@ -5,6 +5,7 @@ Only node modules import this; the maths stays in the ROS-free packages.
 
 from __future__ import annotations
 
+import math
 import signal
 import sys
 from collections.abc import Callable, Iterable
@@ -12,13 +13,15 @@ from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
     ParameterDescriptor,
     ParameterType,
     ParameterValue,
     SetParametersResult,
 )
+from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.srv import SetParameters
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
@@ -27,7 +30,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
-from arm_sim.params import ParamSpec
+from arm_sim.params import ParamSpec, command_line_parameters
 from arm_sim.throttle import Throttle
 
 LEVELS = {'OK': DiagnosticStatus.OK, 'WARN': DiagnosticStatus.WARN,
@@ -58,20 +61,60 @@ def steady_clock() -> Clock:
 
 
 def declare_parameters(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]:
-    """Declare ``specs`` on ``node`` (overrides from ``--ros-args`` and params files apply)
-    and return their values; raise :class:`ConfigError` listing every refused value."""
+    """Declare ``specs`` on ``node`` and return their values; raise :class:`ConfigError`
+    listing every refused value.
+
+    Start-up values come from params files and ``--ros-args -p``, with ``-p`` winning for
+    every parameter (rclpy alone lets a file entry naming the node beat a ``-p``), integers
+    given for doubles taken as doubles, and an empty list (which a params file loads as
+    unset) as the empty default. Numeric parameters carry their range
+    (``FloatingPointRange`` / ``IntegerRange``) for ``ros2 param describe``.
+    """
+    specs = tuple(specs)
+    # rclpy keeps the start-up values (params files, then -p) in this dict and reads it in
+    # declare_parameter; it is what the public ``parameter_overrides`` argument extends.
+    overrides: dict[str, Parameter] = node._parameter_overrides  # noqa: SLF001
+    from_command_line = command_line_parameters(_user_args, node.get_name(),
+                                                node.get_fully_qualified_name())
+    for spec in specs:
+        if spec.name in from_command_line:
+            overrides[spec.name] = Parameter(spec.name, value=from_command_line[spec.name])
+        if spec.name in overrides:
+            value = spec.as_declared(overrides[spec.name].value)
+            overrides[spec.name] = Parameter(spec.name, value=value)
+    own = {spec.name for spec in specs}
+    for name, value in from_command_line.items():  # rclpy's own, e.g. use_sim_time
+        if name not in own and node.has_parameter(name) and (
+                node.get_parameter(name).value != value):
+            node.set_parameters([Parameter(name, value=value)])
     values, reasons = {}, []
     for spec in specs:
-        desc = ParameterDescriptor(name=spec.name, description=spec.doc(),
-                                   read_only=spec.read_only, dynamic_typing=True)
-        value = node.declare_parameter(spec.name, spec.default, desc).value
-        reason = spec.check(value)
-        if reason:
+        reason = spec.check(overrides[spec.name].value) if spec.name in overrides else None
+        if reason:  # refused before rclpy's own range check can raise on it
             reasons.append(reason)
-        values[spec.name] = value
+            continue
+        value = node.declare_parameter(spec.name, spec.default, descriptor(spec)).value
+        values[spec.name] = spec.as_declared(value)
     if reasons:
         raise ConfigError('; '.join(reasons))
     return values
+
+
+def descriptor(spec: ParamSpec) -> ParameterDescriptor:
+    """The ROS descriptor of a parameter: its doc, read-only flag and numeric range."""
+    desc = ParameterDescriptor(name=spec.name, description=spec.doc(),
+                               read_only=spec.read_only, dynamic_typing=True)
+    if spec.minimum is None and spec.maximum is None:
+        return desc
+    lo = -math.inf if spec.minimum is None else spec.minimum
+    hi = math.inf if spec.maximum is None else spec.maximum
+    if spec.kind == 'int':
+        desc.integer_range = [IntegerRange(from_value=int(max(lo, -2**63)),
+                                           to_value=int(min(hi, 2**63 - 1)), step=0)]
+    elif spec.kind in ('double', 'doubles'):
+        desc.floating_point_range = [FloatingPointRange(from_value=float(lo),
+                                                        to_value=float(hi), step=0.0)]
+    return desc
 
 
 def on_parameter_changes(node: Node, specs: Iterable[ParamSpec],
@@ -99,6 +142,11 @@ def on_parameter_changes(node: Node, specs: Iterable[ParamSpec],
         if changed:
             apply(changed)
 
+    def as_declared(params: list[Parameter]) -> list[Parameter]:
+        return [Parameter(p.name, value=table[p.name].as_declared(p.value))
+                if p.name in table else p for p in params]
+
+    node.add_pre_set_parameters_callback(as_declared)
     node.add_on_set_parameters_callback(check)
     node.add_post_set_parameters_callback(after)
 
