@@ -23,8 +23,19 @@ of the forward kinematics from the segment at ``CHECK_POINTS`` interior times pe
 and halve every segment that deviates more than half the tolerance; repeat until none
 does. Quintic Hermite interpolation is invariant under uniform time scaling, so the
 placement holds for any duration (and survives stretching). The finished trajectory is
-then checked once more at 1 ms steps (the test's criterion); the worst deviation is
-reported in :attr:`Plan.max_line_deviation`.
+then checked once more at 1 ms steps (the test's criterion; for plans longer than
+``MAX_VERIFY_SAMPLES`` ms at that many equal steps: the interpolated path is the same in
+``tau`` for any duration, so the check's density along the path is what counts), in
+chunks of ``VERIFY_CHUNK`` samples; the worst deviation is reported in
+:attr:`Plan.max_line_deviation`.
+
+Bounded cost
+------------
+Every plan is bounded: at most ``MAX_DURATION`` s (a duration derived from tiny speed or
+acceleration limits, or stretched to fit the torque limits, beyond it is refused with the
+numbers), at most ``MAX_POINTS`` trajectory points, at most ``MAX_VERIFY_SAMPLES``
+verification samples held ``VERIFY_CHUNK`` at a time. The worst case is measured by
+``bench/bench_planner.py``.
 
 Torque feasibility
 ------------------
@@ -72,6 +83,9 @@ INITIAL_SEGMENTS = 8
 CHECK_POINTS = 7          # interior check times per segment while refining
 BREAK_GAP = 1e-4          # tau: width of the segment holding an acceleration jump
 MAX_POINTS = 20000
+MAX_DURATION = 3600.0     # s: the longest plan (the planner's duration parameter's maximum)
+MAX_VERIFY_SAMPLES = 200_001
+VERIFY_CHUNK = 50_000
 STRETCH_TOLERANCE = 0.005  # relative gap between feasible and infeasible durations
 EVAL_POINTS = 1001
 MIN_LENGTH = 1e-9         # m (line) / rad (joint move): shorter counts as no motion
@@ -103,7 +117,8 @@ class Plan:
     time_scaling : the scaling used (None for a set point).
     ee_velocity, ee_acceleration : (K, 2) m/s, m/s^2 -- ``J q'`` and its derivative.
     max_line_deviation : m or None -- straight line: worst distance from the segment of
-        the controller-interpolated path, checked at 1 ms steps.
+        the controller-interpolated path, checked at 1 ms steps (at most
+        ``MAX_VERIFY_SAMPLES`` equal steps).
     """
 
     mode: str
@@ -261,12 +276,15 @@ def plan_regulation(arm: TwoLinkArm, effort_limits, q_current, goal, *, elbow: s
     amax = _positive_pair('joint_max_acceleration', joint_max_acceleration)
     messages = []
     if duration > 0.0:
-        scaling = TimeScaling(time_scaling, float(duration))
+        scaling = _requested(time_scaling, duration)
         messages.append(f'duration {duration:g} s as requested')
     else:
         moved = np.abs(delta)
-        scaling = from_limits(time_scaling, float((moved / vmax).max()),
-                              float((moved / amax).max()))
+        scaling = _from_limits(time_scaling, float((moved / vmax).max()),
+                               float((moved / amax).max()),
+                               f'joint_max_velocity {_fmt(vmax, 3)} rad/s and '
+                               f'joint_max_acceleration {_fmt(amax, 3)} rad/s^2 over '
+                               f'{_fmt(moved, 4)} rad')
         messages.append(f'duration {scaling.duration:.3f} s from joint_max_velocity '
                         f'{_fmt(vmax, 3)} rad/s and joint_max_acceleration {_fmt(amax, 3)} '
                         'rad/s^2 on the slowest joint')
@@ -342,13 +360,15 @@ def plan_straight_line(arm: TwoLinkArm, effort_limits, q_current, goal, *,
     _check_line(lengths, start, goal, reach_margin, singularity_margin)
     messages = []
     if duration > 0.0:
-        scaling = TimeScaling(time_scaling, float(duration))
+        scaling = _requested(time_scaling, duration)
         messages.append(f'duration {duration:g} s as requested')
     else:
         if not (max_speed > 0.0 and max_acceleration > 0.0):
             raise PlanningError(f'max_speed {max_speed!r} m/s and max_acceleration '
                                 f'{max_acceleration!r} m/s^2 must be > 0 when duration is 0')
-        scaling = from_limits(time_scaling, length / max_speed, length / max_acceleration)
+        scaling = _from_limits(time_scaling, length / max_speed, length / max_acceleration,
+                               f'max_speed {max_speed:g} m/s and max_acceleration '
+                               f'{max_acceleration:g} m/s^2 over {length:.4f} m')
         messages.append(f'duration {scaling.duration:.3f} s from max_speed {max_speed:g} m/s '
                         f'and max_acceleration {max_acceleration:g} m/s^2 over '
                         f'{length:.4f} m')
@@ -374,6 +394,27 @@ def plan_straight_line(arm: TwoLinkArm, effort_limits, q_current, goal, *,
 
 
 # ---------------------------------------------------------------------- internals
+def _requested(kind: str, duration: float) -> TimeScaling:
+    if not duration <= MAX_DURATION:
+        raise PlanningError(f'duration {duration:g} s is longer than {MAX_DURATION:g} s, the '
+                            'longest plan')
+    return TimeScaling(kind, float(duration))
+
+
+def _from_limits(kind: str, speed_time: float, accel_time: float, what: str) -> TimeScaling:
+    """:func:`from_limits`, refused with the numbers when the duration exceeds
+    ``MAX_DURATION`` (degenerate limits such as 1e-6 m/s or 1e-300 rad/s^2)."""
+    if math.isfinite(speed_time) and math.isfinite(accel_time):
+        scaling = from_limits(kind, speed_time, accel_time)
+        if scaling.duration <= MAX_DURATION:
+            return scaling
+        took = f'{scaling.duration:.4g} s'
+    else:
+        took = 'longer than any float'
+    raise PlanningError(f'the motion would take {took} with {what}: longer than '
+                        f'{MAX_DURATION:g} s, the longest plan; raise the limits')
+
+
 def _fmt(values, digits: int) -> str:
     return '[' + ', '.join(f'{float(v):.{digits}f}' for v in np.ravel(values)) + ']'
 
@@ -526,7 +567,12 @@ def _fit_duration(terms, limits, requested: float, policy: str, q_grid,
             f'limit {limits[j]:g} N m; no duration fits')
     if _load(terms, limits, 1.0 / requested) <= 1.0:
         return requested, None
-    lo, hi = 0.0, 1.0 / requested  # u = 1/T: lo fits, hi does not
+    if _load(terms, limits, 1.0 / MAX_DURATION) > 1.0:
+        raise PlanningError(
+            f'the predicted torque exceeds the effort limits {_fmt(limits, 1)} N m even at '
+            f'{MAX_DURATION:g} s, the longest plan: the limits barely hold the arm against '
+            'gravity along this motion')
+    lo, hi = 1.0 / MAX_DURATION, 1.0 / requested  # u = 1/T: lo fits, hi does not
     while hi - lo > STRETCH_TOLERANCE * lo:
         mid = 0.5 * (lo + hi)
         if _load(terms, limits, mid) <= 1.0:
@@ -569,14 +615,17 @@ def _finish(arm: TwoLinkArm, limits, mode: str, profile: str, branch: str, ee_st
     if line is not None:
         start, end, tolerance = line
         traj = Trajectory(q[0], np.zeros(2), times, q, qd, qdd)
-        t = np.linspace(0.0, duration, max(2, int(math.ceil(duration / VERIFY_STEP)) + 1))
-        deviation = float(_segment_distance(
-            arm.forward_kinematics(traj.sample_many(t)[0]), start, end).max())
+        n = min(MAX_VERIFY_SAMPLES, max(2, int(math.ceil(duration / VERIFY_STEP)) + 1))
+        t = np.linspace(0.0, duration, n)
+        deviation = max(float(_segment_distance(
+            arm.forward_kinematics(traj.sample_many(chunk)[0]), start, end).max())
+            for chunk in np.array_split(t, -(-n // VERIFY_CHUNK)))
         if deviation > tolerance:
             raise PlanningError(f'the interpolated line deviates {deviation * 1e3:.4f} mm > '
                                 f'{tolerance * 1e3:g} mm (sampling failed)')
         messages.append(f'controller-interpolated path within {deviation * 1e6:.2f} um of '
-                        'the line (checked at 1 ms steps)')
+                        f'the line (checked at {n} times, {duration / (n - 1) * 1e3:.3g} ms '
+                        'apart)')
     return Plan(mode=mode, profile=profile, times=times, q=q, qd=qd, qdd=qdd,
                 ee_path=arm.forward_kinematics(q), duration=duration, peak_torque=peak,
                 margin=limits - peak, stretched_from=stretched_from,

@@ -27,6 +27,7 @@ from arm_planner.kinematics import PlanningError
 from arm_planner.planner import (
     ELBOW_CHOICES,
     FEASIBILITY,
+    MAX_DURATION,
     MODES,
     PROFILES,
     Plan,
@@ -83,7 +84,7 @@ PLANNER_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('duration', 'double', 0.0,
               'Motion duration; 0 = the shortest within max_speed/max_acceleration '
               '(straight_line) or joint_max_velocity/joint_max_acceleration (synchronized)',
-              's', minimum=0.0, maximum=3600.0),
+              's', minimum=0.0, maximum=MAX_DURATION),
     ParamSpec('max_speed', 'double', 0.5, 'Straight line: maximum end-effector speed', 'm/s',
               minimum=0.0, strict_min=True, maximum=100.0),
     ParamSpec('max_acceleration', 'double', 1.0,

@@ -306,3 +306,48 @@ def test_plan_goal_follows_the_settings():
     assert hold.profile == 'set_point'
     with pytest.raises(ValueError, match='mode must be one of'):
         plan_goal(ARM, LIMITS, Q_START, (0.5, 1.0), PlannerSettings(mode='circle'))
+
+
+# ---------------------------------------------------------------------- bounded cost
+@pytest.mark.parametrize('mode, limit, value', [
+    ('straight_line', 'max_speed', 1e-6),
+    ('straight_line', 'max_acceleration', 1e-300),
+    ('straight_line', 'max_acceleration', 5e-324),  # length / limit overflows to inf
+    ('regulation', 'joint_max_velocity', 1e-6),
+    ('regulation', 'joint_max_acceleration', 1e-300),
+])
+def test_degenerate_limits_are_refused_in_one_line_naming_them(mode, limit, value):
+    settings = PlannerSettings(mode=mode, regulation_profile='synchronized',
+                               **{limit: value})
+    with pytest.raises(PlanningError) as info:
+        plan_goal(ARM, LIMITS, Q_START, (0.5, 1.0), settings)
+    msg = str(info.value)
+    assert f'{limit} ' in msg and 'longer than 3600 s, the longest plan' in msg, msg
+    assert '\n' not in msg
+
+
+def test_a_duration_beyond_the_longest_plan_is_refused():
+    for mode in ('regulation', 'straight_line'):
+        settings = PlannerSettings(mode=mode, regulation_profile='synchronized',
+                                   duration=3600.5)
+        with pytest.raises(PlanningError, match=r'duration 3600.5 s is longer than 3600 s'):
+            plan_goal(ARM, LIMITS, Q_START, (0.5, 1.0), settings)
+
+
+def test_the_longest_plan_is_checked_in_bounded_samples():
+    from arm_planner.planner import MAX_VERIFY_SAMPLES
+    plan = plan_straight_line(ARM, LIMITS, Q_START, (0.5, 1.0), duration=3600.0)
+    assert plan.duration == 3600.0 and plan.max_line_deviation < 1e-4
+    assert any(f'checked at {MAX_VERIFY_SAMPLES} times, 18 ms apart' in m
+               for m in plan.messages), plan.messages
+
+
+def test_a_stretch_beyond_the_longest_plan_is_refused_not_divided_by_zero():
+    from arm_planner.planner import _fit_duration
+    limits = np.array([10.0, 10.0])
+    # Gravity 1e-12 below the limit, dynamics adding to it: only durations far beyond
+    # the longest plan would fit.
+    c = np.array([[10.0 * (1 - 1e-12), 0.0]])
+    terms = (np.array([[1.0, 0.0]]), np.zeros((1, 2)), c)
+    with pytest.raises(PlanningError, match='even at 3600 s, the longest plan'):
+        _fit_duration(terms, limits, 1.0, 'stretch', np.zeros((1, 2)), [])

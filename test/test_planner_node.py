@@ -168,6 +168,16 @@ def test_refused_goals_publish_nothing_and_are_reported(ros, launch, joint_feed)
     refused(goal_msg(math.nan, 1.0), 'goal_not_finite', '[nan, 1.0]')
     refused(goal_msg(0.5, 1.0, frame='world'), 'goal_wrong_frame', "frame_id 'world'")
     refused(goal_msg(3.0, 0.0), 'goal_refused', 'r = 3.0000 m > l1 + l2 - reach_margin')
+    # Degenerate but valid limits: refused in one line, not an exhausted machine.
+    assert set_param(ros, 'mode', 'straight_line').successful
+    assert set_param(ros, 'max_speed', 1e-6).successful
+    diags.clear()  # goal_refused was just reported: re-send until this one's report passes
+    ros.wait_for(lambda: goals.publish(goal_msg(0.5, 1.0)) or spin_for(ros, 0.1) or any(
+        t.startswith('goal_refused: ') and 'longer than 3600 s, the longest plan' in t
+        for t in diag_texts(diags)), 10, 'the degenerate max_speed refused')
+    assert not trajs and not paths
+    assert set_param(ros, 'max_speed', 0.5).successful
+    assert set_param(ros, 'mode', 'regulation').successful
     # Still alive and planning.
     goals.publish(goal_msg(0.5, 1.0))
     ros.wait_for(lambda: trajs, 10, 'a plan for a good goal')
