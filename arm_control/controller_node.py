@@ -22,6 +22,7 @@ from trajectory_msgs.msg import JointTrajectory
 from arm_control.core import ControllerCore
 from arm_control.laws import LAWS, ControlLaw, Gains
 from arm_control.trajectory import StaleTrajectoryError, TrajectoryError, TrajectoryPoint
+from arm_dynamics.limits import JointLimits
 from arm_dynamics.timing import answer_tag
 from arm_dynamics.two_link import TwoLinkArm
 from arm_sim.params import ROBOT_PARAMS, ParamSpec
@@ -120,11 +121,12 @@ class ControllerNode(Node):
         try:
             model = TwoLinkArm.from_params(model_args)
             law = ControlLaw(p['law'], gains_from(p), model, tuple(p['effort_limits']))
+            limits = JointLimits.from_params(p)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
         self.params = p
         self.core = ControllerCore(p['joint_names'], law,
-                                   jump_threshold=p['time_jump_threshold'])
+                                   jump_threshold=p['time_jump_threshold'], limits=limits)
         self.cmd_pub = self.create_publisher(Float64MultiArray, 'effort_controller/commands',
                                              10)
         self.ref_pub = self.create_publisher(JointState, 'arm_controller/reference', 10)

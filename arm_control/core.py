@@ -22,9 +22,11 @@ from arm_control.laws import Command, ControlLaw
 from arm_control.trajectory import (
     StaleTrajectoryError,
     Trajectory,
+    TrajectoryError,
     TrajectoryPoint,
     validate_trajectory,
 )
+from arm_dynamics.limits import JointLimits
 
 
 @dataclass(frozen=True)
@@ -52,7 +54,8 @@ class ControllerCore:
     """
 
     def __init__(self, joint_names: Sequence[str], law: ControlLaw, *,
-                 jump_threshold: float = 1.0, state_jump_tolerance: float = 0.1) -> None:
+                 jump_threshold: float = 1.0, state_jump_tolerance: float = 0.1,
+                 limits: JointLimits | None = None) -> None:
         if not jump_threshold > 0:
             raise ValueError(f'jump_threshold must be > 0 s, got {jump_threshold}')
         if not state_jump_tolerance >= 0:
@@ -62,6 +65,7 @@ class ControllerCore:
         self.law = law
         self.jump_threshold = jump_threshold
         self.state_jump_tolerance = state_jump_tolerance
+        self.limits = limits
         self.trajectory: Trajectory | None = None
         self.start = 0.0
         self.last: tuple[float, np.ndarray, np.ndarray] | None = None  # (t, q, qd)
@@ -84,8 +88,14 @@ class ControllerCore:
         """Validate and make a trajectory the reference from ``start`` [s, sim time] on,
         starting from the measured state (q, qd) at simulated time ``now`` [s] (default
         ``start``). Raises TrajectoryError (reference kept), also for a trajectory that
-        ends before ``now`` (as joint_trajectory_controller refuses one)."""
+        ends before ``now`` (as joint_trajectory_controller refuses one) and for points
+        outside the joint limits (position, or the velocity given)."""
         times, pos, vel, acc = validate_trajectory(joint_names, points, self.joint_names)
+        if self.limits is not None:
+            outside = (self.limits.position_violation(pos)
+                       or (vel is not None and self.limits.velocity_violation(vel)))
+            if outside:
+                raise TrajectoryError(f'trajectory leaves the joint limits: {outside}')
         now = start if now is None else now
         if start + times[-1] < now:
             raise StaleTrajectoryError(

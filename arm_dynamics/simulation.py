@@ -3,8 +3,10 @@
 :class:`SimulatorCore` owns the model state and simulated time (integer nanoseconds, so
 time never drifts), holds the last valid effort command, saturates it at the effort
 limits, integrates one control period at a time with fixed RK4 physics steps, and refuses
-to let the state become non-finite or absurd (divergence stops integration and keeps the
-last good state until :meth:`reset`).
+to let the state become non-finite or absurd: a state outside the runaway envelope (the
+joint limits plus a margin) or faster than ``velocity_limit`` is a fault that stops
+integration and keeps the last good state until :meth:`reset`. Optionally the joint
+limits act as hard end stops.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 
 from arm_dynamics.geared_link import SingleLinkGeared
 from arm_dynamics.integrate import Model
+from arm_dynamics.limits import JointLimits
 from arm_dynamics.two_link import TwoLinkArm
 
 
@@ -58,13 +61,19 @@ class SimulatorCore:
     control_period_ns : int, ns -- a whole multiple of the physics step; one
         :meth:`advance` moves simulated time by this much.
     velocity_limit : rad/s -- any |qd| above it (or a non-finite state) counts as
-        divergence.
+        divergence, whatever the model.
     joint_names : names for :meth:`joint_view`.
+    joint_limits : the arm's limits (None: none). A state outside them is reported by
+        :attr:`outside_limits`; with ``hard_stops`` a joint reaching a position limit
+        stops there (checked after every physics step: position put back on the limit,
+        outward velocity removed).
+    envelope : beyond this a state is a runaway fault (None: no envelope).
     """
 
     def __init__(self, model: Model, *, q0, qd0, effort_limits, physics_step_ns: int,
                  control_period_ns: int, velocity_limit: float,
-                 joint_names: Sequence[str]) -> None:
+                 joint_names: Sequence[str], joint_limits: JointLimits | None = None,
+                 hard_stops: bool = False, envelope: JointLimits | None = None) -> None:
         n = model.n_dof
         if physics_step_ns <= 0 or control_period_ns % physics_step_ns:
             raise ValueError(
@@ -80,6 +89,9 @@ class SimulatorCore:
         self.period_ns = control_period_ns
         self.velocity_limit = velocity_limit
         self.joint_names = tuple(joint_names)
+        self.joint_limits = joint_limits
+        self.hard_stops = hard_stops and joint_limits is not None
+        self.envelope = envelope
         self.time_ns = 0
         self.reset()
 
@@ -118,7 +130,13 @@ class SimulatorCore:
             return
         self.applied = np.clip(self.command, -self.limits, self.limits)
         with np.errstate(all='ignore'):
-            q, qd = self.model.step(self.q, self.qd, self.applied, self.dt, self.substeps)
+            if self.hard_stops:
+                q, qd = self.q, self.qd
+                for _ in range(self.substeps):
+                    q, qd = self.joint_limits.hard_stop(
+                        *self.model.step(q, qd, self.applied, self.dt, 1))
+            else:
+                q, qd = self.model.step(self.q, self.qd, self.applied, self.dt, self.substeps)
         speed = float(np.max(np.abs(qd))) if np.isfinite(qd).all() else math.inf
         if not (np.isfinite(q).all() and speed <= self.velocity_limit):
             self.diverged = (f'integration diverged at t={self.time:.3f} s '
@@ -126,7 +144,21 @@ class SimulatorCore:
                              'non-finite); holding the last good state until reset')
             self.applied = np.zeros(self.n)
             return
+        runaway = self.envelope.violation(q, qd) if self.envelope is not None else None
+        if runaway:
+            self.diverged = (f'runaway at t={self.time:.3f} s: {runaway} (the runaway '
+                             'envelope: joint limits plus margin); holding the last good '
+                             'state until reset')
+            self.applied = np.zeros(self.n)
+            return
         self.q, self.qd = q, qd
+
+    @property
+    def outside_limits(self) -> str | None:
+        """Why the current state is outside the joint limits, or None."""
+        if self.joint_limits is None:
+            return None
+        return self.joint_limits.violation(self.q, self.qd)
 
     def joint_view(self) -> JointView:
         """Positions [rad], velocities [rad/s] and applied efforts [N m] to publish.

@@ -17,6 +17,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
+from arm_dynamics.limits import JointLimits
 from arm_dynamics.simulation import CommandError, SimulatorCore, make_model, validate_command
 from arm_dynamics.timing import (
     ADVANCE,
@@ -89,6 +90,17 @@ SIM_PARAMS: tuple[ParamSpec, ...] = (
               'Any joint speed above this counts as divergence: integration stops and the '
               'last good state is held until reset', 'rad/s', minimum=0.0, strict_min=True,
               read_only=True),
+    ParamSpec('enforce_position_limits', 'bool', False,
+              'Joint position limits act as hard end stops (a joint reaching one stops '
+              'there); otherwise a state outside the limits is only reported',
+              read_only=True),
+    ParamSpec('fault_position_margin', 'double', 0.5,
+              'Runaway envelope: a joint this far beyond a position limit is a fault '
+              '(ERROR, state held until ~/reset)', 'rad', minimum=0.0, maximum=100.0,
+              read_only=True),
+    ParamSpec('fault_velocity_factor', 'double', 2.0,
+              'Runaway envelope: a joint faster than this times its speed limit is a fault',
+              '', minimum=1.0, maximum=1000.0, read_only=True),
     ParamSpec('geared.motor_inertia', 'double', 0.005, 'Geared link: motor inertia Jm',
               'kg m^2', minimum=0.0, strict_min=True, read_only=True),
     ParamSpec('geared.load_inertia', 'double', 1.0,
@@ -141,10 +153,25 @@ class SimulatorNode(Node):
         limits = ([p['geared.effort_limit']] if self.n == 1 else robot['effort_limits'])
         q0, qd0 = self._initial_state(model, p['initial_positions'],
                                       p['initial_velocities'])
+        joint_limits = envelope = None
+        if self.n == 2:  # the geared link's motor shaft has no joint limits of its own
+            try:
+                joint_limits = JointLimits.from_params(robot)
+            except ValueError as exc:
+                raise ConfigError(str(exc)) from None
+            envelope = joint_limits.envelope(p['fault_position_margin'],
+                                             p['fault_velocity_factor'])
+            outside = envelope.position_violation(q0, 'initial position')
+            if outside:
+                raise ConfigError(f'{outside}, beyond the runaway envelope (joint limits '
+                                  f"plus fault_position_margin {p['fault_position_margin']:g}"
+                                  ' rad)')
         self.core = SimulatorCore(model, q0=q0, qd0=qd0, effort_limits=limits,
                                   physics_step_ns=step_ns, control_period_ns=period_ns,
                                   velocity_limit=p['velocity_limit'],
-                                  joint_names=robot['joint_names'])
+                                  joint_names=robot['joint_names'],
+                                  joint_limits=joint_limits,
+                                  hard_stops=p['enforce_position_limits'], envelope=envelope)
         self.keeper = Timekeeper(mode=p['timing_mode'], period_ns=period_ns,
                                  real_time_factor=p['real_time_factor'],
                                  hold_until_command=p['wait_for_command'],
@@ -186,6 +213,11 @@ class SimulatorNode(Node):
             values = changed.get(key)
             if values is not None and not (len(values) == 2 or self.n == 1 and values):
                 return f'{key} needs {max(self.n, 2)} values, got {list(values)}'
+        q0 = changed.get('initial_positions')
+        if q0 is not None and self.core.envelope is not None:
+            outside = self.core.envelope.position_violation(q0, 'initial position')
+            if outside:
+                return f'{outside}, beyond the runaway envelope'
         return None
 
     def _apply_change(self, changed: dict) -> None:
@@ -235,10 +267,17 @@ class SimulatorNode(Node):
 
     def _step_and_publish(self) -> None:
         """One control period with the held command, then publish the new state."""
-        was_diverged = self.core.diverged
-        self.core.advance()
-        if self.core.diverged and not was_diverged:
-            self.diag.problem('diverged', self.core.diverged, 'ERROR')
+        core = self.core
+        was_diverged = core.diverged
+        core.advance()
+        if core.diverged and not was_diverged:
+            kind = 'runaway' if core.diverged.startswith('runaway') else 'diverged'
+            self.diag.problem(kind, core.diverged, 'ERROR')
+        elif not core.diverged:
+            outside = core.outside_limits
+            if outside:
+                self.diag.problem('outside_limits', f'state outside the joint limits: '
+                                  f'{outside}')
         self.publish_state(new_state=True)
 
     def _on_rt_tick(self) -> None:

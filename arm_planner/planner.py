@@ -63,6 +63,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from arm_control.trajectory import Trajectory
+from arm_dynamics.limits import JointLimits
 from arm_dynamics.two_link import TwoLinkArm
 from arm_planner.kinematics import (
     PlanningError,
@@ -194,7 +195,7 @@ def make_arm(robot: dict) -> TwoLinkArm:
 
 
 def plan_goal(arm: TwoLinkArm, effort_limits, q_current, goal,
-              settings: PlannerSettings) -> Plan:
+              settings: PlannerSettings, joint_limits: JointLimits | None = None) -> Plan:
     """Plan per ``settings.mode``: :func:`plan_regulation` or :func:`plan_straight_line`.
 
     Parameters
@@ -204,6 +205,8 @@ def plan_goal(arm: TwoLinkArm, effort_limits, q_current, goal,
     q_current : (2,) rad -- measured joint positions (the plan starts here, at rest).
     goal : (2,) m -- end-effector target in the base frame.
     settings : PlannerSettings
+    joint_limits : the arm's joint limits (None: none): goals, lines and joint speeds stay
+        within them (speeds by stretching the duration, or refusing, per ``feasibility``).
 
     Raises
     ------
@@ -213,7 +216,7 @@ def plan_goal(arm: TwoLinkArm, effort_limits, q_current, goal,
     s = settings
     common = dict(elbow=s.elbow, time_scaling=s.time_scaling, duration=s.duration,
                   feasibility=s.feasibility, reach_margin=s.reach_margin,
-                  singularity_margin=s.singularity_margin)
+                  singularity_margin=s.singularity_margin, joint_limits=joint_limits)
     if s.mode == 'regulation':
         return plan_regulation(arm, effort_limits, q_current, goal,
                                profile=s.regulation_profile,
@@ -231,7 +234,8 @@ def plan_regulation(arm: TwoLinkArm, effort_limits, q_current, goal, *, elbow: s
                     profile: str = 'set_point', time_scaling: str = 'quintic',
                     duration: float = 0.0, joint_max_velocity=1.5,
                     joint_max_acceleration=3.0, feasibility: str = 'stretch',
-                    reach_margin: float = 0.01, singularity_margin: float = 0.1) -> Plan:
+                    reach_margin: float = 0.01, singularity_margin: float = 0.1,
+                    joint_limits: JointLimits | None = None) -> Plan:
     """Reach ``goal`` in joint space.
 
     Parameters
@@ -264,6 +268,8 @@ def plan_regulation(arm: TwoLinkArm, effort_limits, q_current, goal, *, elbow: s
     branch = _branch(elbow, q_current)
     check_point(arm.link_lengths, goal, reach_margin, singularity_margin)
     q_goal = nearest_equivalent(inverse_kinematics(arm.link_lengths, goal, branch), q_current)
+    if joint_limits is not None:
+        q_goal = _within_limits(q_goal, q_current, joint_limits, goal)
     ee_start = arm.forward_kinematics(q_current)
     delta = q_goal - q_current
     if profile == 'set_point' or np.abs(delta).max() < MIN_LENGTH:
@@ -295,7 +301,8 @@ def plan_regulation(arm: TwoLinkArm, effort_limits, q_current, goal, *, elbow: s
 
     knots = _initial_knots(scaling, 50)
     return _finish(arm, limits, 'regulation', 'synchronized', branch, ee_start, goal,
-                   scaling, knots, states, feasibility, messages, line=None)
+                   scaling, knots, states, feasibility, messages, line=None,
+                   joint_limits=joint_limits)
 
 
 # ---------------------------------------------------------------------- straight line
@@ -304,7 +311,8 @@ def plan_straight_line(arm: TwoLinkArm, effort_limits, q_current, goal, *,
                        duration: float = 0.0, max_speed: float = 0.5,
                        max_acceleration: float = 1.0, feasibility: str = 'stretch',
                        reach_margin: float = 0.01, singularity_margin: float = 0.1,
-                       tolerance: float = LINE_TOLERANCE) -> Plan:
+                       tolerance: float = LINE_TOLERANCE,
+                       joint_limits: JointLimits | None = None) -> Plan:
     """Move the end effector on the straight segment from where it is to ``goal``.
 
     Parameters
@@ -390,10 +398,27 @@ def plan_straight_line(arm: TwoLinkArm, effort_limits, q_current, goal, *,
                     f'segments, halve any whose interpolated path leaves the line by more '
                     f'than {tolerance / 2 * 1e3:g} mm)')
     return _finish(arm, limits, 'straight_line', 'line', branch, start, goal, scaling, knots,
-                   states, feasibility, messages, line=line)
+                   states, feasibility, messages, line=line, joint_limits=joint_limits)
 
 
 # ---------------------------------------------------------------------- internals
+def _within_limits(q_goal: np.ndarray, q_current: np.ndarray, limits: JointLimits,
+                   goal) -> np.ndarray:
+    """The goal angles, shifted by whole turns per joint into the joint limits (nearest the
+    current angles); refused with the numbers if no turn fits."""
+    out = []
+    for j, (q, now) in enumerate(zip(q_goal, q_current)):
+        lo, hi = limits.lower[j], limits.upper[j]
+        turns = [q + 2.0 * np.pi * k for k in range(-2, 3)]
+        inside = [x for x in turns if lo <= x <= hi]
+        if not inside:
+            raise PlanningError(
+                f'goal ({goal[0]:.4f}, {goal[1]:.4f}) m needs joint {j + 1} at {q:.4f} rad '
+                f'(or whole turns from it), outside its limits [{lo:g}, {hi:g}] rad')
+        out.append(min(inside, key=lambda x: abs(x - now)))
+    return np.array(out)
+
+
 def _requested(kind: str, duration: float) -> TimeScaling:
     if not duration <= MAX_DURATION:
         raise PlanningError(f'duration {duration:g} s is longer than {MAX_DURATION:g} s, the '
@@ -593,13 +618,30 @@ def _fit_duration(terms, limits, requested: float, policy: str, q_grid,
 
 def _finish(arm: TwoLinkArm, limits, mode: str, profile: str, branch: str, ee_start, goal,
             scaling: TimeScaling, knots: np.ndarray, states, policy: str,
-            messages: list[str], line) -> Plan:
-    """Torque check (stretch/refuse), then the trajectory arrays at the final duration."""
+            messages: list[str], line, joint_limits: JointLimits | None = None) -> Plan:
+    """Joint limits (positions refused, speeds stretched or refused), torque check
+    (stretch/refuse), then the trajectory arrays at the final duration."""
     grid = np.union1d(knots, np.linspace(0.0, 1.0, EVAL_POINTS))
     qg, dqg, ddqg = states(grid)
+    requested = scaling.duration
+    if joint_limits is not None:
+        outside = joint_limits.position_violation(qg, 'would reach')
+        if outside:
+            raise PlanningError(f'the motion leaves the joint limits: {outside.split(" (")[0]}')
+        # Joint speed is dq/dtau / T: the shortest duration within the speed limits.
+        fastest = float((np.abs(dqg) / np.array(joint_limits.velocity)).max())
+        if fastest > requested:
+            what = (f'at duration {requested:.3f} s a joint would exceed its speed limit '
+                    f'{_fmt(joint_limits.velocity, 1)} rad/s')
+            if policy == 'refuse' or fastest > MAX_DURATION:
+                raise PlanningError(f'{what}; the fastest duration within them is '
+                                    f'{fastest:.3f} s (feasibility {policy})')
+            messages.append(f'stretched from {requested:.3f} s to {fastest:.3f} s: {what}')
+            requested = fastest
     terms = _torque_terms(arm, qg, dqg, ddqg)
-    duration, stretched_from = _fit_duration(terms, limits, scaling.duration, policy, qg,
-                                             messages)
+    duration, stretched_from = _fit_duration(terms, limits, requested, policy, qg, messages)
+    if requested != scaling.duration:
+        stretched_from = scaling.duration
     scaling = scaling.with_duration(duration)
     u = 1.0 / duration
     tau_grid = arm.inverse_dynamics(qg, dqg * u, ddqg * u * u)

@@ -23,6 +23,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from arm_dynamics.limits import JointLimits
 from arm_planner.kinematics import PlanningError
 from arm_planner.planner import (
     ELBOW_CHOICES,
@@ -157,7 +158,8 @@ def path_message(plan: Plan, frame: str, stamp) -> Path:
 
 CONTROLLER_WAIT = 5.0  # s (wall): how long a plan waits for a controller to subscribe
 CONFIRM_WAIT = 1.0  # s (wall): re-send a trajectory no controller confirmed after this
-SENDS = 5  # at most this many sends of one trajectory
+SENDS = 10  # at most this many sends of one trajectory (10 s: a controller restarted on
+# a loaded machine took over 5 s to start and confirm)
 
 class PlannerNode(Node):
     """See the module docstring."""
@@ -167,6 +169,7 @@ class PlannerNode(Node):
         p = declare_parameters(self, ROBOT_PARAMS + PLANNER_PARAMS)
         try:
             self.arm = make_arm(p)
+            self.joint_limits = JointLimits.from_params(p)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
         reason = self._validate(p)
@@ -274,7 +277,7 @@ class PlannerNode(Node):
         q, t_ns = start if start is not None else (self.q, self.t_ns)
         try:
             plan = plan_goal(self.arm, self.limits, q, np.array(goal),
-                             settings_from(self.params))
+                             settings_from(self.params), self.joint_limits)
         except (PlanningError, ValueError) as exc:
             self.diag.problem('goal_refused', f'goal_pose refused: {exc}')
             return

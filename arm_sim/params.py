@@ -13,6 +13,12 @@ from typing import Any
 
 import yaml
 
+from arm_dynamics.limits import (
+    DEFAULT_POSITION_LOWER,
+    DEFAULT_POSITION_UPPER,
+    DEFAULT_VELOCITY,
+)
+
 
 @dataclass(frozen=True)
 class ParamSpec:
@@ -22,7 +28,7 @@ class ParamSpec:
     ``'int'``, ``'bool'``. ``length`` fixes an array's length; ``minimum``/``maximum``
     bound every number (``strict_min`` makes the minimum exclusive); ``choices`` lists the
     allowed strings; ``hints`` gives the reason for known refused strings (e.g. a removed
-    mode).
+    mode); ``allow_inf`` accepts -inf / inf (written ``.inf`` in YAML) as "no limit".
     """
 
     name: str
@@ -37,6 +43,7 @@ class ParamSpec:
     length: int | None = None
     read_only: bool = False
     hints: tuple[tuple[str, str], ...] = ()  # (refused value, the reason given for it)
+    allow_inf: bool = False
 
     def doc(self) -> str:
         """The description with unit, range and mutability, as shown by parameter tools."""
@@ -90,7 +97,7 @@ class ParamSpec:
             return f'{name} must be a number, got {item!r}'
         if kind == 'int' and not isinstance(item, int):
             return f'{name} must be an integer, got {item!r}'
-        if not math.isfinite(item):
+        if not math.isfinite(item) and not (self.allow_inf and math.isinf(item)):
             return f'{name} must be finite, got {item!r}'
         unit = f' {self.unit}' if self.unit else ''
         if self.minimum is not None:
@@ -202,6 +209,15 @@ ROBOT_PARAMS: tuple[ParamSpec, ...] = (
           maximum=1e4),
     _pair('effort_limits', (60.0, 20.0), 'Joint torque limits (applied torque is clipped)',
           'N m', minimum=0.0, strict_min=True, maximum=1e6),
+    _pair('position_limits_lower', DEFAULT_POSITION_LOWER,
+          'Joint position lower limits (-.inf: none); default shoulder one turn, elbow not '
+          'past folded', 'rad', allow_inf=True),
+    _pair('position_limits_upper', DEFAULT_POSITION_UPPER,
+          'Joint position upper limits (.inf: none); must exceed the lower', 'rad',
+          allow_inf=True),
+    _pair('velocity_limits', DEFAULT_VELOCITY,
+          'Joint speed limits (.inf: none); default about 3x the demo\'s fastest motion',
+          'rad/s', minimum=0.0, strict_min=True, allow_inf=True),
 )
 
 

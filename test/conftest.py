@@ -172,6 +172,15 @@ class Ros:
         return self.call(SetParameters, f'{node}/set_parameters',
                          set_parameters_request(values)).results
 
+    def wait_gone(self, name: str, timeout: float = 60.0) -> None:
+        """Wait until no node called ``name`` is left in the graph. A stopped process's
+        participant leaves at once; a SIGKILLed one's stays until its DDS lease expires
+        (about 20 s). Until then the processes that wrote to it keep its shared-memory port
+        open, and a process started meanwhile can be handed that very port and stay deaf to
+        them (eProsima/Fast-DDS#5053): restart a killed node only after this."""
+        self.wait_for(lambda: name not in self.node.get_node_names(), timeout,
+                      f'/{name} to leave the graph')
+
     def pause_simulator_now(self, diags: list, node: str = '/simulator') -> float:
         """Pause a lockstep simulator where it is and return that simulated time [s], as
         the simulator reports it (``paused_at``): lockstep runs seconds ahead of what the

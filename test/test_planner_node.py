@@ -137,7 +137,7 @@ def test_goal_gives_one_trajectory_and_path_and_mode_changes_at_run_time(ros, la
 
     # Bad values are refused with the reason and change nothing.
     for name, value, reason in (('mode', 'circle', 'mode must be one of'),
-                                ('duration', -1.0, 'duration must be >= 0 s'),
+                                ('duration', -1.0, 'Parameter duration out of range Min: 0.0'),
                                 ('reach_margin', 0.9, 'leaves no reachable goal')):
         result = set_param(ros, name, value)
         assert not result.successful and reason in result.reason, (name, result.reason)

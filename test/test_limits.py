@@ -1,0 +1,175 @@
+"""Joint limits as everyone uses them, without ROS: the limits themselves, the simulator's
+runaway envelope and end stops, the controller's refusal and the planner's goals, lines and
+speeds."""
+
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+import pytest
+
+from arm_control.core import ControllerCore
+from arm_control.laws import ControlLaw, Gains
+from arm_control.trajectory import TrajectoryError, TrajectoryPoint
+from arm_dynamics import JointLimits, TwoLinkArm
+from arm_dynamics.simulation import SimulatorCore
+from arm_planner import PlannerSettings, PlanningError, plan_goal
+
+ARM = TwoLinkArm()
+LIMITS = JointLimits()  # the defaults: shoulder +-2 pi, elbow +-pi, 8 rad/s
+EFFORT = np.array([60.0, 20.0])
+Q0 = np.array([-0.4, 1.2])
+
+
+def test_the_defaults_are_one_shoulder_turn_either_way_elbow_to_folded_and_8_rad_s():
+    assert LIMITS.lower == (-2 * math.pi, -math.pi) and LIMITS.upper == (2 * math.pi, math.pi)
+    assert LIMITS.velocity == (8.0, 8.0)
+
+
+@pytest.mark.parametrize('lower, upper, velocity, words', [
+    ((0.0, 0.0), (1.0, 0.0), (1.0, 1.0), 'joint 2 position limits must satisfy lower < upper'),
+    ((math.inf, 0.0), (math.inf, 1.0), (1.0, 1.0), 'joint 1 position limits'),
+    ((0.0, 0.0), (1.0, 1.0), (1.0, 0.0), 'velocity limits must be > 0 rad/s'),
+    ((0.0,), (1.0, 1.0), (1.0, 1.0), 'one value per joint'),
+])
+def test_inconsistent_limits_are_refused_naming_them(lower, upper, velocity, words):
+    with pytest.raises(ValueError, match=words):
+        JointLimits(lower, upper, velocity)
+
+
+def test_infinite_limits_mean_none():
+    free = JointLimits((-math.inf,) * 2, (math.inf,) * 2, (math.inf,) * 2)
+    assert free.violation([1e300, -1e300], [1e300, 0.0]) is None
+    assert free.position_violation([math.nan, 0.0]) is not None  # NaN is never inside
+
+
+def test_violations_name_the_joint_the_value_and_the_limit():
+    assert LIMITS.violation(Q0, [0.0, 0.0]) is None and LIMITS.contains(Q0, [0.0, 0.0])
+    assert LIMITS.position_violation([[0.0, 0.0], [0.0, 1e300]]) == (
+        'joint 2 position 1e+300 rad > upper limit 3.14159 rad (point 1)')
+    assert LIMITS.violation([-7.0, 0.0], [0.0, 0.0]) == (
+        'joint 1 position -7 rad < lower limit -6.28319 rad')
+    assert LIMITS.violation(Q0, [0.0, -9.5]) == 'joint 2 speed 9.5 rad/s > limit 8 rad/s'
+    assert not LIMITS.contains(Q0, [0.0, -9.5])
+
+
+def test_the_envelope_widens_positions_by_the_margin_and_speeds_by_the_factor():
+    env = LIMITS.envelope(0.5, 2.0)
+    assert env.upper == (2 * math.pi + 0.5, math.pi + 0.5) and env.velocity == (16.0, 16.0)
+
+
+def test_a_hard_stop_puts_the_joint_on_its_limit_and_removes_its_outward_speed():
+    q, qd = LIMITS.hard_stop(np.array([0.0, 3.3]), np.array([1.0, 2.0]))
+    assert q.tolist() == [0.0, math.pi] and qd.tolist() == [1.0, 0.0]
+    q, qd = LIMITS.hard_stop(np.array([0.0, 3.3]), np.array([1.0, -2.0]))  # moving back in
+    assert qd.tolist() == [1.0, -2.0]
+
+
+# ---------------------------------------------------------------------- simulator
+def core(torque, **kw) -> SimulatorCore:
+    sim = SimulatorCore(ARM, q0=Q0, qd0=[0.0, 0.0], effort_limits=EFFORT,
+                        physics_step_ns=1_000_000, control_period_ns=10_000_000,
+                        velocity_limit=1000.0, joint_names=('joint1', 'joint2'),
+                        joint_limits=LIMITS, **kw)
+    sim.set_command(torque)
+    return sim
+
+
+def test_a_runaway_is_a_fault_that_holds_the_last_good_state_until_reset():
+    sim = core([0.0, 20.0], envelope=LIMITS.envelope(0.5, 2.0))  # saturated elbow spins up
+    outside_seen = False
+    for _ in range(1000):
+        sim.advance()
+        outside_seen |= sim.outside_limits is not None
+        if sim.diverged:
+            break
+    assert outside_seen, 'the state left the limits before the envelope'
+    assert sim.diverged.startswith('runaway at t=') and 'joint 2' in sim.diverged
+    held = (sim.q.copy(), sim.qd.copy())
+    assert LIMITS.envelope(0.5, 2.0).contains(*held), 'the last good state is inside'
+    sim.advance()
+    assert np.array_equal(sim.q, held[0]) and sim.applied.tolist() == [0.0, 0.0]
+    sim.reset()
+    assert sim.diverged is None and sim.q.tolist() == Q0.tolist()
+    sim.advance()
+    assert sim.diverged is None
+
+
+def test_hard_stops_keep_every_state_within_the_position_limits():
+    sim = core([0.0, 20.0], hard_stops=True)
+    reached = []
+    for _ in range(300):
+        sim.advance()
+        assert LIMITS.position_violation(sim.q) is None
+        reached.append(sim.q[1])
+    assert max(reached) == pytest.approx(math.pi), 'pushed against the elbow stop'
+
+
+# ---------------------------------------------------------------------- controller
+def controller() -> ControllerCore:
+    law = ControlLaw('pd', Gains(kp=(100.0, 60.0), kd=(20.0, 12.0)), ARM, tuple(EFFORT))
+    return ControllerCore(('joint1', 'joint2'), law, limits=LIMITS)
+
+
+@pytest.mark.parametrize('point, words', [
+    (TrajectoryPoint(0.0, (1e300, 0.0)), 'joint 1 position 1e+300 rad > upper limit'),
+    (TrajectoryPoint(0.0, (0.0, -100.0)), 'joint 2 position -100 rad < lower limit'),
+    (TrajectoryPoint(1.0, (0.0, 0.0), (9.0, 0.0)), 'joint 1 speed 9 rad/s > limit 8'),
+])
+def test_the_controller_refuses_a_trajectory_leaving_the_limits_and_keeps_its_reference(
+        point, words):
+    ctl = controller()
+    ctl.update(0.0, Q0, np.zeros(2))
+    before = ctl.trajectory
+    with pytest.raises(TrajectoryError,
+                       match=re.escape(f'trajectory leaves the joint limits: {words}')):
+        ctl.set_trajectory(('joint1', 'joint2'), [point], 0.0, Q0, np.zeros(2))
+    assert ctl.trajectory is before
+
+
+# ---------------------------------------------------------------------- planner
+def plan(goal, q=Q0, **settings):
+    return plan_goal(ARM, EFFORT, np.asarray(q, float), np.asarray(goal, float),
+                     PlannerSettings(**settings), LIMITS)
+
+
+def test_a_goal_is_planned_at_the_turn_of_the_shoulder_inside_its_limits():
+    # From the shoulder at 6.0 rad, the nearest turn of the goal's 0.15 rad would be 6.43 rad,
+    # past 2 pi: the goal is planned at 0.15 rad instead (going back within the limits).
+    p = plan((1.0, 1.2), q=(6.0, 1.0), regulation_profile='synchronized')
+    assert LIMITS.position_violation(p.q) is None
+    assert abs(p.q[-1, 0] - 6.0) > math.pi, 'the long way round, inside the limits'
+    assert np.hypot(*(ARM.forward_kinematics(p.q[-1]) - (1.0, 1.2))) < 1e-9
+
+
+def test_a_goal_no_turn_of_which_fits_the_limits_is_refused_with_the_numbers():
+    narrow = JointLimits((-1.0, -math.pi), (1.0, math.pi), (8.0, 8.0))
+    with pytest.raises(PlanningError, match=r'needs joint 1 at .* outside its limits \[-1, 1\]'):
+        plan_goal(ARM, EFFORT, Q0, np.array([-1.0, -0.5]), PlannerSettings(), narrow)
+
+
+def test_a_line_that_would_leave_the_limits_is_refused_where_a_joint_move_is_not():
+    # The line to (0.5, 1.0) m bends the elbow to 1.854 rad on the way; it ends at 1.817.
+    narrow = JointLimits(LIMITS.lower, (2 * math.pi, 1.835), LIMITS.velocity)
+    with pytest.raises(PlanningError, match=r'the motion leaves the joint limits: joint 2 '
+                                            r'would reach 1\.85\d* rad > upper limit 1\.835 rad'):
+        plan_goal(ARM, EFFORT, Q0, np.array([0.5, 1.0]),
+                  PlannerSettings(mode='straight_line'), narrow)
+    p = plan_goal(ARM, EFFORT, Q0, np.array([0.5, 1.0]),
+                  PlannerSettings(regulation_profile='synchronized'), narrow)
+    assert p.q[:, 1].max() <= 1.835
+
+
+@pytest.mark.parametrize('mode', ['straight_line', 'regulation'])
+def test_a_motion_too_fast_for_the_speed_limits_is_stretched_or_refused(mode):
+    slow = JointLimits(LIMITS.lower, LIMITS.upper, (0.3, 0.3))
+    settings = dict(mode=mode, regulation_profile='synchronized', duration=0.5)
+    p = plan_goal(ARM, EFFORT, Q0, np.array([0.5, 1.0]), PlannerSettings(**settings), slow)
+    assert p.stretched_from == 0.5 and p.duration > 0.5
+    assert np.abs(p.qd).max() <= 0.3 + 1e-9
+    assert any('exceed its speed limit' in m for m in p.messages)
+    with pytest.raises(PlanningError, match='fastest duration within them is'):
+        plan_goal(ARM, EFFORT, Q0, np.array([0.5, 1.0]),
+                  PlannerSettings(**settings, feasibility='refuse'), slow)
