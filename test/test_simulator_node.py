@@ -22,6 +22,23 @@ def command(values) -> Float64MultiArray:
     return Float64MultiArray(data=[float(v) for v in values])
 
 
+class Answerer:
+    """Plays a lockstep controller: each call answers the latest state with ``tau``, once
+    per stamp (the simulator re-sends a state it got no answer to), and returns that
+    stamp [s]; ``answered`` holds every stamp answered."""
+
+    def __init__(self, states: list, pub, tau) -> None:
+        self.states, self.pub, self.tau = states, pub, tau
+        self.answered: set[float] = set()
+
+    def __call__(self) -> float:
+        t = stamp(self.states[-1])
+        if t not in self.answered:
+            self.answered.add(t)
+            self.pub.publish(command(self.tau))
+        return t
+
+
 def diag_messages(diags: list, node: str = '/simulator') -> list[str]:
     return [f'{s.message} {[(kv.key, kv.value) for kv in s.values]}'
             for d in diags for s in d.status if s.name == node]
@@ -33,17 +50,8 @@ def test_lockstep_motion_under_constant_torque_matches_solve_ivp(ros, launch):
     states = ros.collect(JointState, 'joint_states')
     pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
     ros.wait_for(lambda: states, what='first joint state')
-    answered = set()
-
-    def drive():
-        # Answer every new state once (lockstep: one command advances one period).
-        last = states[-1]
-        if stamp(last) not in answered:
-            answered.add(stamp(last))
-            pub.publish(command(tau))
-        return stamp(last) >= 1.5 - 1e-9
-
-    ros.wait_for(drive, timeout=60, what='1.5 s of simulated time')
+    drive = Answerer(states, pub, tau)  # lockstep: one command advances one period
+    ros.wait_for(lambda: drive() >= 1.5 - 1e-9, timeout=60, what='1.5 s of simulated time')
     first = {stamp(m): m for m in states}
     times = np.array(sorted(first))
     assert times[0] == 0.0 and np.allclose(np.diff(times), 0.01), 'one state per 10 ms period'
@@ -173,22 +181,16 @@ def test_a_runaway_is_reported_once_held_and_recovered_by_reset(ros, launch):
         return [s for d in diags for s in d.status if s.name == '/simulator'
                 and any(kv.key == 'event' and kv.value == kind for kv in s.values)]
 
-    answered = set()
-
-    def drive():
-        t = stamp(states[-1])
-        if t not in answered:
-            answered.add(t)
-            pub.publish(command([0.0, 20.0]))
-        return events('runaway')
-
-    fault = ros.wait_for(drive, timeout=60, what='the runaway fault')[0]
+    drive = Answerer(states, pub, [0.0, 20.0])
+    fault = ros.wait_for(lambda: drive() is not None and events('runaway'), timeout=60,
+                         what='the runaway fault')[0]
     assert fault.level == DiagnosticStatus.ERROR
     assert 'runaway at t=' in fault.message and 'joint 2 speed' in fault.message
     assert events('outside_limits'), 'leaving the limits was reported before the fault'
     # Held: further commands advance time but the state stays the last good one.
     n = len(states)
-    ros.wait_for(lambda: drive() and len(states) > n + 5, what='states after the fault')
+    ros.wait_for(lambda: drive() is not None and len(states) > n + 5,
+                 what='states after the fault')
     held = states[n - 1:]
     assert all(m.position == held[0].position for m in held), 'the last good state is held'
     assert np.abs(held[0].velocity).max() <= 16.0, 'the held state is inside the envelope'
@@ -199,16 +201,9 @@ def test_a_runaway_is_reported_once_held_and_recovered_by_reset(ros, launch):
     reset = ros.wait_for(lambda: [m for m in states[n:] if m.position == pytest.approx(
         [-0.4, 1.2], abs=1e-12)], what='the reset state')[0]
     # Time runs on after the reset (an answer sent just before it may advance it once).
-    zeroed = set()
-
-    def run_on():
-        t = stamp(states[-1])
-        if t not in zeroed:
-            zeroed.add(t)
-            pub.publish(command([0.0, 0.0]))
-        return t > stamp(reset) + 0.015
-
-    ros.wait_for(run_on, what='the simulation to run again after reset')
+    run_on = Answerer(states, pub, [0.0, 0.0])
+    ros.wait_for(lambda: run_on() > stamp(reset) + 0.015,
+                 what='the simulation to run again after reset')
     ros.wait_for(lambda: [run_on()] and any(  # driven on: a waiting simulator says WARN
         s.name == '/simulator' and s.level == DiagnosticStatus.OK
         for d in diags[d0:] for s in d.status), what='the summary back to OK')
@@ -219,16 +214,10 @@ def test_lockstep_pauses_at_pause_at_and_resumes_when_it_moves(ros, launch):
     states = ros.collect(JointState, 'joint_states')
     pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
     ros.wait_for(lambda: states, what='first joint state')
-    answered = set()
+    drive = Answerer(states, pub, [1.0, 0.0])
 
     def answer(until):
-        def step():
-            t = stamp(states[-1])
-            if t not in answered:
-                answered.add(t)
-                pub.publish(command([1.0, 0.0]))
-            return t >= until - 1e-9
-        return step
+        return lambda: drive() >= until - 1e-9
 
     diags = ros.collect(DiagnosticArray, '/diagnostics')
     ros.wait_for(answer(0.05), what='time to reach pause_at')
@@ -265,20 +254,12 @@ def test_single_link_geared_model_follows_the_lectures_equation(ros, launch):
     pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
     ros.wait_for(lambda: states, what='first joint state')
     assert list(states[0].name) == ['joint1_motor', 'joint1']
-    answered = set()
-
-    def drive():
-        t = stamp(states[-1])
-        if t not in answered:
-            answered.add(t)
-            pub.publish(command([0.05]))
-        return t >= 1.0 - 1e-9
-
-    ros.wait_for(drive, timeout=30, what='1 s of simulated time')
+    drive = Answerer(states, pub, [0.05])
+    ros.wait_for(lambda: drive() >= 1.0 - 1e-9, timeout=30, what='1 s of simulated time')
     n = link.gear_ratio
     ref = simulate(model=link, q0=[0.3 * n], qd0=[0.0], torque=[0.05], duration=1.0,
                    dt=1e-3, method='solve_ivp')
-    last = {stamp(m): m for m in states}[max(answered)]
+    last = {stamp(m): m for m in states}[max(drive.answered)]
     assert last.position[0] == pytest.approx(ref.q[-1, 0], abs=1e-6), 'motor angle'
     assert last.position[1] == pytest.approx(ref.q[-1, 0] / n, abs=1e-8), 'link = motor / n'
 
