@@ -70,3 +70,14 @@ def test_jump_settings_are_validated():
         ControllerCore(JOINTS, law, jump_threshold=0.0)
     with pytest.raises(ValueError, match='state_jump_tolerance'):
         ControllerCore(JOINTS, law, state_jump_tolerance=-1.0)
+
+
+def test_a_trajectory_starting_in_the_future_holds_the_measured_position_until_then():
+    c = core('pd')
+    c.update(1.0, Q0, ZERO)
+    pts = [TrajectoryPoint(1.0, [0.2, 0.8], [0.0, 0.0], [0.0, 0.0])]
+    c.set_trajectory(JOINTS, pts, 3.0, Q0, ZERO, now=1.0)  # starts 2 s from now
+    for t in (1.01, 2.0, 2.99, 3.0):
+        step = c.update(t, Q0, ZERO)
+        assert np.array_equal(step.q_des, Q0) and np.array_equal(step.qd_des, ZERO), t
+    assert np.allclose(c.update(4.0, Q0, ZERO).q_des, [0.2, 0.8]), 'then the motion'
