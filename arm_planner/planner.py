@@ -429,13 +429,18 @@ def _requested(kind: str, duration: float) -> TimeScaling:
 def _from_limits(kind: str, speed_time: float, accel_time: float, what: str) -> TimeScaling:
     """:func:`from_limits`, refused with the numbers when the duration exceeds
     ``MAX_DURATION`` (degenerate limits such as 1e-6 m/s or 1e-300 rad/s^2)."""
-    if math.isfinite(speed_time) and math.isfinite(accel_time):
+    # Either scaling takes at least max(speed_time, sqrt(accel_time)): refuse on that
+    # bound first, before a degenerate trapezoid (blend ~ 0) can be formed.
+    bound = max(speed_time, math.sqrt(accel_time))
+    if not math.isfinite(bound):
+        took = 'longer than any float'
+    elif bound > MAX_DURATION:
+        took = f'at least {bound:.4g} s'
+    else:
         scaling = from_limits(kind, speed_time, accel_time)
         if scaling.duration <= MAX_DURATION:
             return scaling
         took = f'{scaling.duration:.4g} s'
-    else:
-        took = 'longer than any float'
     raise PlanningError(f'the motion would take {took} with {what}: longer than '
                         f'{MAX_DURATION:g} s, the longest plan; raise the limits')
 

@@ -173,3 +173,62 @@ def test_a_motion_too_fast_for_the_speed_limits_is_stretched_or_refused(mode):
     with pytest.raises(PlanningError, match='fastest duration within them is'):
         plan_goal(ARM, EFFORT, Q0, np.array([0.5, 1.0]),
                   PlannerSettings(**settings, feasibility='refuse'), slow)
+
+
+# ---------------------------------------------------------------------- property
+def log_uniform(rng, lo: float, hi: float) -> float:
+    return float(10 ** rng.uniform(math.log10(lo), math.log10(hi)))
+
+
+def test_random_goals_settings_and_trajectories_never_escape_the_limits_or_raise():
+    """1200 seeded random cases: goals anywhere (inside, outside and on the edge of the
+    workspace), every mode/profile/scaling/policy, limits from 1e-300 up and durations up
+    to 1e4 s are either planned within the joint and effort limits or refused with a
+    PlanningError; random trajectories are accepted only within the limits, and every
+    command the controller then gives is finite and within the effort limits."""
+    rng = np.random.default_rng(10)
+    planned = refused = 0
+    for case in range(1000):
+        q = rng.uniform([-6.0, -3.0], [6.0, 3.0])
+        goal = rng.uniform(-2.2, 2.2, 2)
+        settings = PlannerSettings(
+            mode=str(rng.choice(['regulation', 'straight_line'])),
+            elbow=str(rng.choice(['up', 'down', 'keep'])),
+            time_scaling=str(rng.choice(['quintic', 'trapezoidal'])),
+            duration=float(rng.choice([0.0, log_uniform(rng, 1e-3, 1e4)])),
+            max_speed=log_uniform(rng, 1e-300, 100.0),
+            max_acceleration=log_uniform(rng, 1e-300, 1000.0),
+            joint_max_velocity=log_uniform(rng, 1e-300, 1000.0),
+            joint_max_acceleration=log_uniform(rng, 1e-300, 1e5),
+            regulation_profile=str(rng.choice(['set_point', 'synchronized'])),
+            feasibility=str(rng.choice(['stretch', 'refuse'])))
+        try:
+            p = plan_goal(ARM, EFFORT, q, goal, settings, LIMITS)
+        except PlanningError:
+            refused += 1
+            continue
+        planned += 1
+        assert np.isfinite(p.q).all() and np.isfinite(p.qd).all(), case
+        assert LIMITS.position_violation(p.q[1:]) is None, (case, settings)
+        assert LIMITS.velocity_violation(p.qd) is None, (case, settings)
+        assert (p.peak_torque <= EFFORT + 1e-9).all() or p.profile == 'set_point', case
+        assert p.duration <= 3600.0, case
+    assert planned > 200 and refused > 200, (planned, refused)  # both paths exercised
+    ctl = controller()
+    ctl.update(0.0, Q0, np.zeros(2))
+    for case in range(200):
+        k = int(rng.integers(1, 4))
+        scale = log_uniform(rng, 1e-3, 1e300)
+        points = [TrajectoryPoint(float(t), tuple(rng.uniform(-1, 1, 2) * scale),
+                                  tuple(rng.uniform(-1, 1, 2) * min(scale, 1e3)))
+                  for t in np.cumsum(rng.uniform(0.01, 2.0, k))]
+        try:
+            traj = ctl.set_trajectory(('joint1', 'joint2'), points, 0.0, Q0, np.zeros(2))
+        except TrajectoryError:
+            continue
+        assert LIMITS.position_violation(traj.positions[1:]) is None
+        for t in np.linspace(0.0, traj.times[-1] + 0.5, 7):
+            tau = ctl.update(float(t), Q0, np.zeros(2)).command.tau
+            assert np.isfinite(tau).all() and (np.abs(tau) <= EFFORT).all(), (case, tau)
+        ctl.hold(float(traj.times[-1]) + 1.0, Q0, np.zeros(2))
+        ctl.last = None
