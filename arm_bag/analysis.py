@@ -21,7 +21,8 @@ Per segment:
   to the set point, per joint and overall = the largest) and overshoot (% of the step).
 * straight_line: perpendicular deviation of the end effector (forward kinematics of the
   recorded positions, link lengths from the ``arm_sim_robot`` record) from the line
-  through the path's first and last pose.
+  through the path's first and last pose, from the path's start on (its first pose's
+  stamp: later than the trajectory's when the planner first brought a moving arm to rest).
 * torque: peak and RMS applied torque (JointState effort), saturated fraction
   (|effort| >= effort_limit - 1e-9), energy delivered (trapezoid integral of tau . qd).
 
@@ -58,7 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from arm_bag import metrics
-from arm_bag.reader import BagData, JointStates, read_bag
+from arm_bag.reader import BagData, JointStates, PathMsg, read_bag
 from arm_dynamics import TwoLinkArm
 
 PATH_LEAD = 1_000_000_000  # ns: a path may arrive up to 1 s before its trajectory
@@ -292,20 +293,20 @@ def _torque(t, effort, velocity, limits, sl) -> dict:
 
 
 def _path_for(bag: BagData, log_time: int, nxt: int | None,
-              stamp: int = 0) -> np.ndarray | None:
+              stamp: int = 0) -> PathMsg | None:
     """The trajectory's planned path: the one stamped like it (none if paths are stamped
     but none is stamped so), else the one received closest to it (within PATH_LEAD
     before it, or any time before the next trajectory)."""
     if stamp and any(p.stamp for p in bag.paths):  # stamped paths: only its own
         same = [p for p in bag.paths if p.stamp == stamp]
-        return same[-1].xy if same else None
+        return same[-1] if same else None
     best = None
     for p in bag.paths:
         if p.log_time < log_time - PATH_LEAD or (nxt is not None and p.log_time >= nxt):
             continue
         if best is None or abs(p.log_time - log_time) < abs(best.log_time - log_time):
             best = p
-    return None if best is None else best.xy
+    return best
 
 
 def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
@@ -317,13 +318,15 @@ def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
     seg.series = {'t': ts - ts[0], 'q': q, 'effort': js.effort[sl]}
     set_point = None
     points = None
+    line_from = 0  # ns: a line after a stop is measured from its own start
     if tr is not None:
         traj = tr.trajectory
         set_point = traj.positions[-1]
         seg.set_point = _list(set_point)
         path = _path_for(bag, tr.log_time, nxt, traj.stamp)
-        if path is not None and len(path):
-            points = path
+        if path is not None and len(path.xy):
+            points = path.xy
+            line_from = path.start if path.stamp and path.start > path.stamp else 0
         elif arm is not None:
             points = arm.forward_kinematics(traj.positions)
         straight = points is not None and metrics.is_straight_line(points)
@@ -357,7 +360,8 @@ def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
                          for j in range(q.shape[1])]
     if seg.mode == 'straight_line' and arm is not None:
         a, b = points[0], points[-1]
-        xy = arm.forward_kinematics(q[np.isfinite(q).all(axis=1)])
+        measured = np.isfinite(q).all(axis=1) & (js.stamp[sl] >= line_from)
+        xy = arm.forward_kinematics(q[measured])
         dev = metrics.line_deviation(xy, a, b)
         seg.line_start, seg.line_end = _list(a), _list(b)
         if len(dev):

@@ -276,15 +276,18 @@ def _pose_xy(c: Cursor) -> tuple[float, float]:
     return x, y
 
 
-def decode_path(data: bytes | memoryview) -> tuple[int, str, np.ndarray]:
-    """nav_msgs/Path -> (stamp [ns], frame_id, xy (P, 2) m)."""
+def decode_path(data: bytes | memoryview) -> tuple[int, str, np.ndarray, int]:
+    """nav_msgs/Path -> (stamp [ns], frame_id, xy (P, 2) m, the first pose's stamp [ns],
+    or the path's when it has no pose)."""
     c = Cursor(data)
     stamp, frame = c.header()
     xy = []
-    for _ in range(c.u32()):
-        c.header()
+    first = stamp
+    for k in range(c.u32()):
+        pose_stamp, _ = c.header()
+        first = pose_stamp if k == 0 else first
         xy.append(_pose_xy(c))
-    return stamp, frame, np.array(xy, dtype=np.float64).reshape(len(xy), 2)
+    return stamp, frame, np.array(xy, dtype=np.float64).reshape(len(xy), 2), first
 
 
 def decode_pose_stamped(data: bytes | memoryview) -> tuple[int, str, float, float]:
@@ -361,13 +364,15 @@ def encode_joint_trajectory(stamp_ns: int, names, positions, times_s) -> bytes:
     return bytes(w.buf)
 
 
-def encode_path(stamp_ns: int, xy, frame_id: str = 'base_link') -> bytes:
-    """nav_msgs/Path of planar poses (z = 0, identity orientation) as CDR bytes."""
+def encode_path(stamp_ns: int, xy, frame_id: str = 'base_link',
+                pose_stamp_ns: int | None = None) -> bytes:
+    """nav_msgs/Path of planar poses (z = 0, identity orientation) as CDR bytes; the poses
+    are stamped ``pose_stamp_ns`` (default: the path's stamp)."""
     w = Writer()
     w.header(stamp_ns, frame_id)
     w.u32(len(xy))
     for x, y in xy:
-        w.header(stamp_ns, frame_id)
+        w.header(stamp_ns if pose_stamp_ns is None else pose_stamp_ns, frame_id)
         w.float64s([x, y, 0.0, 0.0, 0.0, 0.0, 1.0], with_count=False)
     return bytes(w.buf)
 

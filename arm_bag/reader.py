@@ -78,12 +78,15 @@ class TrajectoryMsg:
 @dataclass
 class PathMsg:
     """A nav_msgs/Path: ``xy`` (P, 2) [m], received at ``log_time`` [ns], header stamp
-    ``stamp`` [ns] (arm_sim's planner stamps it like its trajectory)."""
+    ``stamp`` [ns] (arm_sim's planner stamps it like its trajectory); ``start`` [ns]: its
+    first pose's stamp, when the path starts (later than ``stamp`` for a line the planner
+    begins by bringing a moving arm to rest)."""
 
     log_time: int
     frame_id: str
     xy: np.ndarray
     stamp: int = 0
+    start: int = 0
 
 
 @dataclass
@@ -465,7 +468,7 @@ def _decode_topics(bag: BagData, per_topic: dict[str, list]) -> None:
     decoders = (('joint_trajectory', TRAJECTORY, decode_joint_trajectory,
                  lambda t, m: bag.trajectories.append(TrajectoryMsg(t, m))),
                 ('planner/path', PATH, decode_path,
-                 lambda t, m: bag.paths.append(PathMsg(t, m[1], m[2], m[0]))),
+                 lambda t, m: bag.paths.append(PathMsg(t, m[1], m[2], m[0], m[3]))),
                 ('goal_pose', POSE_STAMPED, decode_pose_stamped,
                  lambda t, m: bag.goals.append(GoalMsg(t, m[1], m[2], m[3]))))
     for suffix, type_name, decode, add in decoders:

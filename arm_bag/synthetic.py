@@ -59,9 +59,11 @@ def joint_state_block(stamps_ns: np.ndarray, position: np.ndarray, velocity: np.
 def write_run(w: BagWriter, ch: dict[str, int], t0_log: int, t: np.ndarray,
               q: np.ndarray, qd: np.ndarray, tau: np.ndarray, ref: np.ndarray | None,
               trajectory: tuple[np.ndarray, np.ndarray] | None = None,
-              path_xy: np.ndarray | None = None, stamp0: int = 0) -> int:
+              path_xy: np.ndarray | None = None, stamp0: int = 0,
+              path_start: int | None = None) -> int:
     """Write one segment: a trajectory (positions (P, 2), times (P,) s, stamped ``stamp0``:
-    it starts there) and path at ``t0_log`` [ns receive time], then a joint state (and
+    it starts there) and path (its poses stamped ``path_start`` [ns], default ``stamp0``)
+    at ``t0_log`` [ns receive time], then a joint state (and
     reference) per sample of ``t`` [s, simulated time from ``stamp0`` ns], received 1 us
     apart. Returns the next free
     receive time."""
@@ -71,7 +73,8 @@ def write_run(w: BagWriter, ch: dict[str, int], t0_log: int, t: np.ndarray,
                 encode_joint_trajectory(stamp0, NAMES, *trajectory), log)
         log += 1000
     if path_xy is not None:
-        w.write(ch['/planner/path'], encode_path(stamp0, path_xy), log)
+        w.write(ch['/planner/path'], encode_path(stamp0, path_xy, pose_stamp_ns=path_start),
+                log)
         log += 1000
     stamps = stamp0 + np.round(np.asarray(t) * 1e9).astype(np.int64)
     states = joint_state_block(stamps, q, qd, tau)

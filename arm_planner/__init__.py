@@ -8,10 +8,11 @@ from arm_planner.planner import (
     make_arm,
     plan_goal,
     plan_regulation,
+    plan_stop,
     plan_straight_line,
 )
 from arm_planner.time_scaling import TimeScaling, from_limits
 
 __all__ = ['Plan', 'PlannerSettings', 'PlanningError', 'TimeScaling', 'check_point',
            'elbow_of', 'from_limits', 'inverse_kinematics', 'make_arm', 'plan_goal',
-           'plan_regulation', 'plan_straight_line']
+           'plan_regulation', 'plan_stop', 'plan_straight_line']

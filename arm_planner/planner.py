@@ -91,6 +91,9 @@ STRETCH_TOLERANCE = 0.005  # relative gap between feasible and infeasible durati
 EVAL_POINTS = 1001
 MIN_LENGTH = 1e-9         # m (line) / rad (joint move): shorter counts as no motion
 VERIFY_STEP = 0.001       # s: final check of the interpolated line
+REST_SPEED = 1e-3         # rad/s: a joint slower than this counts as at rest
+STOP_KNOTS = 9            # points of the stop that brings a moving arm to rest
+STOP_DWELL = 0.5          # s: held at rest after a stop, for the tracking to settle
 
 
 @dataclass(frozen=True)
@@ -120,6 +123,8 @@ class Plan:
     max_line_deviation : m or None -- straight line: worst distance from the segment of
         the controller-interpolated path, checked at 1 ms steps (at most
         ``MAX_VERIFY_SAMPLES`` equal steps).
+    stop_duration : s -- time spent first bringing a moving arm to rest and holding it
+        there (0: it started at rest); the motion proper (the line) starts then.
     """
 
     mode: str
@@ -141,12 +146,16 @@ class Plan:
     ee_velocity: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     ee_acceleration: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     max_line_deviation: float | None = None
+    stop_duration: float = 0.0
 
     @property
     def display_path(self) -> np.ndarray:
-        """(M, 2) m: the end-effector path to show (a set point: start and goal)."""
+        """(M, 2) m: the end-effector path to show (a set point: start and goal; a line
+        after a stop: the line alone, from where the arm came to rest)."""
         if self.profile == 'set_point':
             return np.vstack([self.ee_start, self.ee_path])
+        if self.profile == 'line' and self.stop_duration > 0.0:
+            return self.ee_path[self.times >= self.stop_duration]
         return self.ee_path
 
     def summary(self, effort_limits=None) -> str:
@@ -195,16 +204,26 @@ def make_arm(robot: dict) -> TwoLinkArm:
 
 
 def plan_goal(arm: TwoLinkArm, effort_limits, q_current, goal,
-              settings: PlannerSettings, joint_limits: JointLimits | None = None) -> Plan:
+              settings: PlannerSettings, joint_limits: JointLimits | None = None,
+              qd_current=None) -> Plan:
     """Plan per ``settings.mode``: :func:`plan_regulation` or :func:`plan_straight_line`.
+
+    From a moving arm (``qd_current`` faster than ``REST_SPEED`` at some joint) the plan
+    first brings it to rest, blending from its velocity with no jump in velocity or
+    acceleration (:func:`plan_stop`), holds it there ``STOP_DWELL`` s (a hard stop leaves
+    a tracking error that would otherwise spill into the line: 6.6 mm at 20 rad/s^2
+    without the hold), then makes the motion from there: a straight line then starts at
+    rest on its own line, so the tip keeps the same deviation bound as from rest. A set
+    point is not preceded by a stop (it is a step anyway).
 
     Parameters
     ----------
     arm : the planner's model.
     effort_limits : (2,) N m, > 0
-    q_current : (2,) rad -- measured joint positions (the plan starts here, at rest).
+    q_current : (2,) rad -- measured joint positions (the plan starts here).
     goal : (2,) m -- end-effector target in the base frame.
     settings : PlannerSettings
+    qd_current : (2,) rad/s or None -- measured joint velocities (None: at rest).
     joint_limits : the arm's joint limits (None: none): goals, lines and joint speeds stay
         within them (speeds by stretching the duration, or refusing, per ``feasibility``).
 
@@ -214,6 +233,19 @@ def plan_goal(arm: TwoLinkArm, effort_limits, q_current, goal,
         With the reason, naming the numbers.
     """
     s = settings
+    moving = qd_current is not None and not (
+        np.abs(np.asarray(qd_current, dtype=float)) < REST_SPEED).all()
+    set_point = s.mode == 'regulation' and s.regulation_profile == 'set_point'
+    if moving and not set_point:
+        stop = plan_stop(arm, effort_limits, q_current, qd_current,
+                         joint_max_acceleration=s.joint_max_acceleration,
+                         joint_limits=joint_limits)
+        rest = plan_goal(arm, effort_limits, stop.q[-1], goal, s, joint_limits)
+        if stop.duration + STOP_DWELL + rest.duration > MAX_DURATION:
+            raise PlanningError(f'the stop ({stop.duration:.4g} s) and the motion '
+                                f'({rest.duration:.4g} s) together are longer than '
+                                f'{MAX_DURATION:g} s, the longest plan')
+        return _after_stop(arm, effort_limits, stop, rest)
     common = dict(elbow=s.elbow, time_scaling=s.time_scaling, duration=s.duration,
                   feasibility=s.feasibility, reach_margin=s.reach_margin,
                   singularity_margin=s.singularity_margin, joint_limits=joint_limits)
@@ -227,6 +259,102 @@ def plan_goal(arm: TwoLinkArm, effort_limits, q_current, goal,
                                   max_acceleration=s.max_acceleration,
                                   tolerance=s.line_tolerance, **common)
     raise ValueError(f"mode must be one of {', '.join(MODES)}, got {s.mode!r}")
+
+
+# ---------------------------------------------------------------------- stopping
+def plan_stop(arm: TwoLinkArm, effort_limits, q_current, qd_current, *,
+              joint_max_acceleration=3.0, joint_limits: JointLimits | None = None) -> Plan:
+    """Bring a moving arm to rest: each joint ``q(t) = q0 + v T (s - s^3 + s^4 / 2)``,
+    ``s = t / T``, so velocity ``v (1 - 3 s^2 + 2 s^3)`` falls from ``v`` to 0 with zero
+    acceleration at both ends (no jump in the command). It travels ``v T / 2``, its peak
+    deceleration is ``1.5 |v| / T``.
+
+    ``T`` is the shortest within ``joint_max_acceleration`` [rad/s^2] (scalar or per joint),
+    lengthened by 25% steps until the predicted torque fits ``effort_limits``. Refused
+    (PlanningError) if no ``T`` up to ``MAX_DURATION`` fits, or if the arm cannot come to
+    rest inside ``joint_limits``.
+    """
+    limits = _positive_pair('effort_limits', effort_limits)
+    q0 = np.asarray(q_current, dtype=float)
+    v = np.asarray(qd_current, dtype=float)
+    if q0.shape != (2,) or v.shape != (2,) or not (np.isfinite(q0).all()
+                                                   and np.isfinite(v).all()):
+        raise PlanningError(f'the current joint state must be finite (2 positions, 2 '
+                            f'velocities), got {q0.ravel().tolist()}, {v.ravel().tolist()}')
+    amax = _positive_pair('joint_max_acceleration', joint_max_acceleration)
+    now = np.abs(arm.inverse_dynamics(q0, v, np.zeros(2)))  # the stop's first instant
+    if (now > limits).any():
+        j = int(np.argmax(now / limits))
+        raise PlanningError(
+            f'the arm moving at {_fmt(v, 3)} rad/s is beyond its effort limits already: '
+            f'at q = {_fmt(q0, 4)} rad gravity and the velocity terms alone need '
+            f'{now[j]:.2f} N m at joint {j + 1} > limit {limits[j]:g} N m; no stop fits')
+    duration = float((1.5 * np.abs(v) / amax).max())
+    s = np.linspace(0.0, 1.0, EVAL_POINTS)[:, None]
+    while True:
+        if not duration <= MAX_DURATION:
+            raise PlanningError(
+                f'the arm moving at {_fmt(v, 3)} rad/s cannot be brought to rest within '
+                f'{MAX_DURATION:g} s (joint_max_acceleration {_fmt(amax, 3)} rad/s^2, '
+                f'effort limits {_fmt(limits, 1)} N m)')
+        q, qd, qdd = _stop_states(q0, v, duration, s)
+        peak = np.abs(arm.inverse_dynamics(q, qd, qdd)).max(axis=0)
+        if (peak <= limits).all():
+            break
+        duration *= 1.25
+    if joint_limits is not None:
+        outside = joint_limits.position_violation(q, 'would reach')
+        if outside:
+            raise PlanningError('the moving arm cannot come to rest within its joint '
+                                f'limits: {outside.split(" (")[0]}')
+    knots = np.linspace(0.0, 1.0, STOP_KNOTS)
+    qk, qdk, qddk = _stop_states(q0, v, duration, knots[:, None])
+    note = (f'the arm was moving at {_fmt(v, 3)} rad/s: brought to rest first, in '
+            f'{duration:.3f} s at q = {_fmt(qk[-1], 4)} rad (peak torque {_fmt(peak, 2)} '
+            'N m)')
+    jac = arm.jacobian(qk)
+    return Plan(mode='stop', profile='stop', times=knots * duration, q=qk, qd=qdk, qdd=qddk,
+                ee_path=arm.forward_kinematics(qk), duration=duration, peak_torque=peak,
+                margin=limits - peak, stretched_from=None, messages=(note,),
+                elbow=elbow_of(qk[-1]), ee_start=arm.forward_kinematics(q0),
+                goal=arm.forward_kinematics(qk[-1]),
+                ee_velocity=np.einsum('kij,kj->ki', jac, qdk),
+                ee_acceleration=np.einsum('kij,kj->ki', jac, qddk) + _jdot_qd(arm, qk, qdk),
+                stop_duration=duration)
+
+
+def _stop_states(q0, v, duration: float, s: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Joint (q, qd, qdd) of :func:`plan_stop` at normalised times ``s`` (K, 1)."""
+    q = q0 + v * duration * (s - s**3 + 0.5 * s**4)
+    qd = v * (1.0 - 3.0 * s**2 + 2.0 * s**3)
+    qdd = v / duration * (-6.0 * s + 6.0 * s**2)
+    return q, qd, qdd
+
+
+def _after_stop(arm: TwoLinkArm, effort_limits, stop: Plan, rest: Plan) -> Plan:
+    """``rest`` (planned from where ``stop`` ends, at rest) after ``stop`` and a
+    ``STOP_DWELL`` hold, as one plan."""
+    limits = _positive_pair('effort_limits', effort_limits)
+    if len(rest.times) == 1:  # already at the goal once at rest: the stop ends there
+        times, profile, start = stop.times, 'stop', stop.duration
+        q = np.vstack([stop.q[:-1], rest.q])
+        qd, qdd = stop.qd, stop.qdd
+    else:  # rest's first point is where the stop ends; held there, then the motion
+        start = stop.duration + STOP_DWELL
+        times, profile = np.concatenate([stop.times, start + rest.times]), rest.profile
+        q = np.vstack([stop.q, rest.q])
+        qd = np.vstack([stop.qd, rest.qd])
+        qdd = np.vstack([stop.qdd, rest.qdd])
+    jac = arm.jacobian(q)
+    peak = np.maximum(stop.peak_torque, rest.peak_torque)
+    return Plan(mode=rest.mode, profile=profile, times=times, q=q, qd=qd, qdd=qdd,
+                ee_path=arm.forward_kinematics(q), duration=float(times[-1]),
+                peak_torque=peak, margin=limits - peak, stretched_from=rest.stretched_from,
+                messages=stop.messages + rest.messages, elbow=rest.elbow,
+                ee_start=stop.ee_start, goal=rest.goal, time_scaling=rest.time_scaling,
+                ee_velocity=np.einsum('kij,kj->ki', jac, qd),
+                ee_acceleration=np.einsum('kij,kj->ki', jac, qdd) + _jdot_qd(arm, q, qd),
+                max_line_deviation=rest.max_line_deviation, stop_duration=start)
 
 
 # ---------------------------------------------------------------------- regulation

@@ -21,6 +21,7 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from arm_dynamics.limits import JointLimits
@@ -143,13 +144,21 @@ def trajectory_message(plan: Plan, joint_names, start_ns: int = 0) -> JointTraje
 
 
 def path_message(plan: Plan, frame: str, stamp) -> Path:
-    """nav_msgs/Path of the planned end-effector path in ``frame``."""
+    """nav_msgs/Path of the planned end-effector path in ``frame``, stamped like its
+    trajectory. Each pose is stamped with the simulated time its path starts: the
+    trajectory's, or for a line after a stop (the arm was moving) the line's own start,
+    ``plan.stop_duration`` later, so that a reader measures the line from there."""
     msg = Path()
     msg.header.frame_id = frame
     msg.header.stamp = stamp
+    ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+    if plan.profile == 'line' and plan.stop_duration > 0.0 and ns:
+        ns += round(plan.stop_duration * 1e9)
+    sec, nanosec = divmod(ns, 1_000_000_000)
+    pose_header = Header(frame_id=frame, stamp=Time(sec=sec, nanosec=nanosec))
     for x, y in plan.display_path:
         pose = PoseStamped()
-        pose.header = msg.header
+        pose.header = pose_header
         pose.pose.position.x, pose.pose.position.y = float(x), float(y)
         pose.pose.orientation.w = 1.0
         msg.poses.append(pose)
@@ -179,6 +188,7 @@ class PlannerNode(Node):
         self.joint_names = list(p['joint_names'])
         self.limits = np.array(p['effort_limits'], dtype=float)
         self.q: np.ndarray | None = None
+        self.qd: np.ndarray | None = None  # measured velocities (None: not given: at rest)
         self.t_ns = 0  # simulated time of self.q
         # the last trajectory a controller accepted: (its stamp ns, goal xy)
         self.active: tuple[int, tuple[float, float]] | None = None
@@ -235,9 +245,16 @@ class PlannerNode(Node):
                 self.diag.problem('rejected_joint_state',
                                   f'joint_states has non-finite positions {q.tolist()}')
                 return
+            qd = None
+            if len(msg.velocity) == len(names):
+                qd = np.array([msg.velocity[names.index(j)] for j in self.joint_names], float)
+                if not np.isfinite(qd).all():
+                    self.diag.problem('rejected_joint_state', f'joint_states has non-finite '
+                                      f'velocities {qd.tolist()}')
+                    return
             if self.q is None:
                 self.diag.set('OK', 'ready: waiting for goal_pose')
-            self.q = q
+            self.q, self.qd = q, qd
             self.t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         except Exception as exc:  # noqa: BLE001 -- never die on a message
             self.diag.problem('internal_error', f'joint_states handling failed: {exc!r}',
@@ -271,13 +288,15 @@ class PlannerNode(Node):
     def _plan(self, goal: tuple[float, float], sends: int,
               start: tuple[np.ndarray, int] | None = None) -> None:
         """Plan ``goal`` from ``start`` = (q [rad], the stamp to give the trajectory [ns]:
-        where it starts, 0 = on arrival), by default the latest joint state and its time,
-        and queue it for sending (``sends`` = how often this goal's
-        trajectory went out already)."""
-        q, t_ns = start if start is not None else (self.q, self.t_ns)
+        where it starts, 0 = on arrival; held there, so at rest), by default the latest
+        joint state (position and velocity: a moving arm is brought to rest first) and its
+        time, and queue it for sending (``sends`` = how often this goal's trajectory went
+        out already)."""
+        q, qd, t_ns = (start[0], None, start[1]) if start is not None else (
+            self.q, self.qd, self.t_ns)
         try:
             plan = plan_goal(self.arm, self.limits, q, np.array(goal),
-                             settings_from(self.params), self.joint_limits)
+                             settings_from(self.params), self.joint_limits, qd_current=qd)
         except (PlanningError, ValueError) as exc:
             self.diag.problem('goal_refused', f'goal_pose refused: {exc}')
             return

@@ -257,3 +257,27 @@ def test_cli_errors_are_one_line_with_a_distinct_exit_code(tmp_path, kind, code)
     assert 'Traceback' not in out.stderr
     errors = [line for line in out.stderr.splitlines() if not line.startswith('warning:')]
     assert kind == 'usage' or len(errors) == 1, out.stderr
+
+
+def test_a_line_after_a_stop_is_measured_from_where_its_path_starts(tmp_path):
+    """The planner brings a moving arm to rest before a line and stamps the path's poses
+    with the line's start: the stop, off the line, does not count as line deviation."""
+    a, b = np.array([1.2, 0.3]), np.array([0.6, 0.9])
+    normal = np.array([1.0, 1.0]) / np.sqrt(2)
+    stop = a + np.linspace(0.05, 0.0, 6)[:, None] * normal  # 50 mm off, coming to rest at a
+    s = np.linspace(0, 1, 11)
+    line = a + s[:, None] * (b - a) + (0.001 * np.sin(np.pi * s))[:, None] * normal
+    xy = np.vstack([stop, line[1:]])
+    q = ik(xy)
+    n = len(xy)
+    path_xy = a + np.linspace(0, 1, 5)[:, None] * (b - a)
+    for path_start, expected in ((10_500_000_000, 0.001), (None, 0.05)):
+        bag = tmp_path / f'bag{path_start}'
+        w, ch = open_bag(bag)
+        write_run(w, ch, 1_000_000, np.arange(n) * 0.1, q, np.zeros((n, 2)),
+                  np.zeros((n, 2)), q, (ik(path_xy), np.linspace(0, 2, 5)), path_xy,
+                  stamp0=10_000_000_000, path_start=path_start)
+        w.close()
+        seg = analyze(bag).segments[0]
+        assert seg.mode == 'straight_line'
+        assert seg.deviation_max == pytest.approx(expected, abs=1e-9), path_start

@@ -351,3 +351,64 @@ def test_a_stretch_beyond_the_longest_plan_is_refused_not_divided_by_zero():
     terms = (np.array([[1.0, 0.0]]), np.zeros((1, 2)), c)
     with pytest.raises(PlanningError, match='even at 3600 s, the longest plan'):
         _fit_duration(terms, limits, 1.0, 'stretch', np.zeros((1, 2)), [])
+
+
+# ---------------------------------------------------------------------- from motion
+QD_FAST = np.array([2.0, -2.5])  # rad/s
+
+
+def test_a_stop_blends_from_the_current_velocity_to_rest_within_the_limits():
+    from arm_planner import plan_stop
+    stop = plan_stop(ARM, LIMITS, Q_START, QD_FAST, joint_max_acceleration=3.0)
+    assert np.array_equal(stop.q[0], Q_START) and np.array_equal(stop.qd[0], QD_FAST)
+    assert np.array_equal(stop.qdd[0], [0.0, 0.0]), 'no jump in acceleration'
+    assert np.abs(stop.qd[-1]).max() == 0.0 and np.abs(stop.qdd[-1]).max() == 0.0
+    assert stop.duration == pytest.approx(1.5 * 2.5 / 3.0), 'within joint_max_acceleration'
+    assert np.allclose(stop.q[-1], Q_START + QD_FAST * stop.duration / 2)
+    # The controller's quintic interpolation of the knots is the stop itself.
+    t, (q, qd, qdd) = controller_samples(stop, 1e-3)
+    s = np.clip(t / stop.duration, 0, 1)[:, None]
+    exact = Q_START + QD_FAST * stop.duration * (s - s**3 + s**4 / 2)
+    assert np.abs(q - exact).max() < 1e-12
+    assert (stop.peak_torque <= LIMITS).all()
+
+
+def test_a_stop_that_would_exceed_the_torque_limits_takes_longer():
+    from arm_planner import plan_stop
+    weak = np.array([40.0, 12.0])
+    fast = plan_stop(ARM, LIMITS * 1e3, Q_START, QD_FAST, joint_max_acceleration=1e3)
+    slow = plan_stop(ARM, weak, Q_START, QD_FAST, joint_max_acceleration=1e3)
+    assert fast.duration == pytest.approx(1.5 * 2.5 / 1e3)
+    assert slow.duration > 10 * fast.duration and (slow.peak_torque <= weak).all()
+    with pytest.raises(PlanningError, match=r'beyond its effort limits already: .* at joint 2'):
+        plan_stop(ARM, LIMITS, Q_START, 4 * QD_FAST)  # the velocity terms alone exceed them
+
+
+@pytest.mark.parametrize('time_scaling', ['quintic', 'trapezoidal'])
+def test_a_line_from_a_moving_arm_stops_first_then_keeps_the_line_bound(time_scaling):
+    settings = PlannerSettings(mode='straight_line', time_scaling=time_scaling)
+    p = plan_goal(ARM, LIMITS, Q_START, (0.5, 1.0), settings, qd_current=QD_FAST)
+    assert p.stop_duration > 0 and 'brought to rest first' in p.messages[0]
+    assert np.array_equal(p.qd[0], QD_FAST), 'starts at the measured velocity'
+    line_start = p.ee_path[p.times == p.stop_duration][0]
+    assert np.allclose(p.display_path[0], line_start) and np.allclose(p.display_path[-1],
+                                                                       (0.5, 1.0))
+    t, (q, _, _) = controller_samples(p)
+    on_line = ARM.forward_kinematics(q[t >= p.stop_duration])
+    assert distance_to_segment(on_line, line_start, (0.5, 1.0)).max() < 1e-4, (
+        'the line itself within the same bound as from rest')
+    assert (p.peak_torque <= LIMITS).all()
+    assert np.hypot(*(ARM.forward_kinematics(q[-1]) - (0.5, 1.0))) < 1e-9
+
+
+def test_regulation_from_a_moving_arm_is_smooth_and_ends_at_the_goal():
+    settings = PlannerSettings(regulation_profile='synchronized')
+    p = plan_goal(ARM, LIMITS, Q_START, (0.5, 1.0), settings, qd_current=QD_FAST)
+    t, (q, qd, qdd) = controller_samples(p)
+    assert np.abs(np.diff(qd, axis=0)).max() < 0.02, 'velocity continuous (1 ms steps)'
+    assert np.hypot(*(ARM.forward_kinematics(q[-1]) - (0.5, 1.0))) < 1e-9
+    at_rest = plan_goal(ARM, LIMITS, Q_START, (0.5, 1.0), settings, qd_current=[0.0, 0.0])
+    assert at_rest.stop_duration == 0.0 and np.array_equal(at_rest.qd[0], [0.0, 0.0])
+    set_point = plan_goal(ARM, LIMITS, Q_START, (0.5, 1.0), PlannerSettings(),
+                          qd_current=QD_FAST)
+    assert len(set_point.times) == 1, 'a set point is a step: no stop before it'
