@@ -209,6 +209,30 @@ def test_an_absurd_set_point_is_refused_with_the_numbers_on_trajectory_status(ro
     assert states[-1].position == pytest.approx(Q0, abs=1e-9), 'the arm still held'
 
 
+def test_a_trajectory_that_ended_is_refused_and_one_that_starts_later_waits_holding(ros,
+                                                                                   suite):
+    states, refs, pub = suite()
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    statuses = ros.collect(DiagnosticStatus, 'arm_controller/trajectory_status')
+    run_until(ros, states, 1.0)
+    now = ros.pause_simulator_now(diags)
+    ended = trajectory([(0.5, [0.3, 0.6])], start=0.1)  # ended at t = 0.6 s
+    ros.wait_for(lambda: statuses or pub.publish(ended), what='the answer to the ended one')
+    assert statuses[-1].message.startswith('refused: trajectory ends in the past: it starts '
+                                           'at t=0.100 s and ends at t=0.600 s'), (
+        statuses[-1].message)
+    later = trajectory([(1.0, [0.3, 0.6], [0, 0], [0, 0])], start=now + 1.0)
+    send_until_accepted(ros, pub, diags, later)
+    assert ros.set_params('/simulator', pause_at=-1.0)[0].successful
+    run_until(ros, states, now + 2.5)
+    before = [r for r in refs if now <= stamp(r) < now + 1.0 - 1e-9]
+    assert len(before) >= 90, 'references while waiting'
+    assert all(r.position == pytest.approx(Q0, abs=1e-12) for r in before), 'held until then'
+    moving = [r for r in refs if now + 1.0 < stamp(r) < now + 2.0]
+    assert moving and moving[-1].position != pytest.approx(Q0, abs=1e-3), 'then it moves'
+    assert states[-1].position == pytest.approx([0.3, 0.6], abs=1e-3), 'and gets there'
+
+
 def accepted(diags) -> int:
     """The controller's count of accepted trajectories, as last reported."""
     counts = [int(kv.value) for d in diags for s in d.status if s.name == '/controller'
