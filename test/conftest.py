@@ -8,7 +8,6 @@ node; waits spin the executor until a condition holds (no fixed sleeps).
 
 from __future__ import annotations
 
-import contextlib
 import os
 import signal
 import subprocess
@@ -173,30 +172,11 @@ class Ros:
         return self.call(SetParameters, f'{node}/set_parameters',
                          set_parameters_request(values)).results
 
-    def wait_gone(self, name: str, timeout: float = 60.0) -> None:
-        """Wait until no node called ``name`` is left in the graph: a stopped process's
-        participant leaves at once, a SIGKILLed one's when its DDS lease expires (about
-        20 s). Restart a node only after this, and inside :meth:`holding_the_freed_slot`."""
-        self.wait_for(lambda: name not in self.node.get_node_names(), timeout,
+    def wait_gone(self, name: str, leaving: int = 0, timeout: float = 60.0) -> None:
+        """Wait until at most ``leaving`` nodes called ``name`` are in the graph. A stopped
+        node leaves at once, a killed one when its DDS lease ends (about 20 s)."""
+        self.wait_for(lambda: self.node.get_node_names().count(name) <= leaving, timeout,
                       f'/{name} to leave the graph')
-
-    @contextlib.contextmanager
-    def holding_the_freed_slot(self):
-        """Restart a node inside this: a DDS participant of the test's own, made at once,
-        takes the participant slot (and with it the shared-memory port) the stopped node
-        freed, so the node started next gets a fresh one. Fast DDS otherwise hands the
-        restarted process the old port while its running peers still write to their open
-        mapping of it, and the new process can stay deaf to them (seen: a restarted
-        simulator never got the controller's commands, stopped cleanly or killed;
-        eProsima/Fast-DDS#5053). Stay inside until the new node has shown it is up."""
-        context = self.rclpy.Context()
-        self.rclpy.init(context=context, domain_id=DOMAIN_ID)
-        holder = self.rclpy.create_node('arm_sim_test_slot_holder', context=context)
-        try:
-            yield
-        finally:
-            holder.destroy_node()
-            self.rclpy.shutdown(context=context)
 
     def pause_simulator_now(self, diags: list, node: str = '/simulator') -> float:
         """Pause a lockstep simulator where it is and return that simulated time [s], as

@@ -293,15 +293,13 @@ def test_controller_killed_mid_motion_then_restarted_holds_the_arm(ros, launch, 
     ros.wait_for(lambda: problems(diags, '/simulator', 'waiting_for_command'), timeout=10,
                  what="the simulator's report of the silent controller")
     held = states[-1]
-    ros.wait_gone('controller')  # its DDS lease, ~20 s: the arm must wait that long
     n = len(states)
     ros.wait_for(lambda: len(states) > n + 2, what='states re-sent while waiting')
-    assert max(stamp(m) for m in states) == stamp(held), 'time stood still'
+    assert {stamp(m) for m in states[n - 1:]} == {stamp(held)}, 'time stood still'
     q_kill, qd_kill = np.array(held.position), np.array(held.velocity)
     assert np.abs(qd_kill).max() > 0.3, 'killed mid-motion'
-    with ros.holding_the_freed_slot():
-        launch('controller', params_file=CONFIG)
-        run_until(ros, states, stamp(held) + 3.0)
+    launch('controller', params_file=CONFIG)
+    run_until(ros, states, stamp(held) + 3.0)
     after = np.array([m.position for m in states if stamp(m) >= stamp(held)])
     swing = np.abs(after - q_kill).max(axis=0)
     assert (swing <= swing_bound(qd_kill)).all(), (
@@ -316,22 +314,19 @@ def test_simulator_restarted_mid_motion_the_controller_holds_the_new_state(ros, 
     diags = ros.collect(DiagnosticArray, '/diagnostics')
     start_motion(ros, states, pub, diags)
     simulator = next(p for p in launch.procs if p.name == 'simulator')
-    # Stopped (SIGTERM) and restarted; the controller crash test covers SIGKILL.
-    simulator.stop(signal.SIGTERM)
-    ros.wait_gone('simulator')
+    simulator.stop(signal.SIGKILL)
     k = len(states)
+    launch('simulator', params_file=CONFIG, params={'timing_mode': 'lockstep'})
+    ros.wait_for(lambda: problems(diags, '/controller', 'time_jump'), timeout=30,
+                 what='the controller to report the time jump')
 
     def new_run():  # from the first step back in time on
         first = next((i for i in range(max(k, 1), len(states))
                       if stamp(states[i]) < stamp(states[i - 1])), None)
         return None if first is None else states[first:]
 
-    with ros.holding_the_freed_slot():
-        launch('simulator', params_file=CONFIG, params={'timing_mode': 'lockstep'})
-        ros.wait_for(lambda: problems(diags, '/controller', 'time_jump'), timeout=30,
-                     what='the controller to report the time jump')
-        ros.wait_for(lambda: new_run() and stamp(new_run()[-1]) >= 3.0, timeout=30,
-                     what='3 s of the new simulation')
+    ros.wait_for(lambda: new_run() and stamp(new_run()[-1]) >= 3.0, timeout=30,
+                 what='3 s of the new simulation')
     q = np.array([m.position for m in new_run()])
     assert np.abs(q - Q0).max() < 1e-6, (
         'the new arm is held where it started, not driven along the old trajectory')

@@ -101,7 +101,7 @@ def test_sigkill_loses_at_most_the_last_flush_and_the_rest_is_readable(ros, laun
                                                                        tmp_path):
     proc, out, sent, diags = record(ros, launch, tmp_path)
     assert proc.stop(signal.SIGKILL) == -signal.SIGKILL
-    ros.wait_gone('recorder')  # before any later test starts a node (see Ros.wait_gone)
+    ros.wait_gone('recorder')  # its lease: no later node may be handed its ports before
     meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     bag = read_bag(out)
     assert bag.truncated, 'no footer after SIGKILL'
