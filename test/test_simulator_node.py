@@ -201,7 +201,8 @@ def test_a_runaway_is_reported_once_held_and_recovered_by_reset(ros, launch):
     reset = ros.wait_for(lambda: [m for m in states[n:] if m.position == pytest.approx(
         [-0.4, 1.2], abs=1e-12)], what='the reset state')[0]
     # Time runs on after the reset (an answer sent just before it may advance it once).
-    run_on = Answerer(states, pub, [0.0, 0.0])
+    # Holding torque: with none the arm would fall, swing and may run away again.
+    run_on = Answerer(states, pub, ARM.gravity_vector(np.array([-0.4, 1.2])).tolist())
     ros.wait_for(lambda: run_on() > stamp(reset) + 0.015,
                  what='the simulation to run again after reset')
     ros.wait_for(lambda: [run_on()] and any(  # driven on: a waiting simulator says WARN
