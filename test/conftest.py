@@ -172,6 +172,21 @@ class Ros:
         return self.call(SetParameters, f'{node}/set_parameters',
                          set_parameters_request(values)).results
 
+    def wait_after_restart(self, condition: Callable[[], object], stuck: Callable[[], bool],
+                           node: str, timeout: float, what: str) -> object:
+        """:meth:`wait_for` after restarting ``node``; if it times out while ``stuck()``
+        (the restarted loop never left its first state), the test is marked xfail: Fast
+        DDS can leave a node restarted beside running peers deaf to them
+        (eProsima/Fast-DDS#5053; README, Known limitations), which is not arm_sim's
+        behaviour under test. Any other timeout fails as usual."""
+        try:
+            return self.wait_for(condition, timeout, what)
+        except pytest.fail.Exception:
+            if stuck():
+                pytest.xfail(f'Fast DDS left the restarted {node} deaf to its peers '
+                             '(eProsima/Fast-DDS#5053; README: Known limitations)')
+            raise
+
     def wait_gone(self, name: str, leaving: int = 0, timeout: float = 60.0) -> None:
         """Wait until at most ``leaving`` nodes called ``name`` are in the graph. A stopped
         node leaves at once, a killed one when its DDS lease ends (about 20 s)."""

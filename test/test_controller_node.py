@@ -299,7 +299,9 @@ def test_controller_killed_mid_motion_then_restarted_holds_the_arm(ros, launch, 
     q_kill, qd_kill = np.array(held.position), np.array(held.velocity)
     assert np.abs(qd_kill).max() > 0.3, 'killed mid-motion'
     launch('controller', params_file=CONFIG)
-    run_until(ros, states, stamp(held) + 3.0)
+    ros.wait_after_restart(lambda: stamp(states[-1]) >= stamp(held) + 3.0 - 1e-9,
+                           lambda: stamp(states[-1]) == stamp(held), 'controller',
+                           timeout=60, what='3 s after the restart')
     after = np.array([m.position for m in states if stamp(m) >= stamp(held)])
     swing = np.abs(after - q_kill).max(axis=0)
     assert (swing <= swing_bound(qd_kill)).all(), (
@@ -325,8 +327,9 @@ def test_simulator_restarted_mid_motion_the_controller_holds_the_new_state(ros, 
                       if stamp(states[i]) < stamp(states[i - 1])), None)
         return None if first is None else states[first:]
 
-    ros.wait_for(lambda: new_run() and stamp(new_run()[-1]) >= 3.0, timeout=30,
-                 what='3 s of the new simulation')
+    ros.wait_after_restart(lambda: new_run() and stamp(new_run()[-1]) >= 3.0,
+                           lambda: max(stamp(m) for m in (new_run() or states[-1:])) == 0.0,
+                           'simulator', timeout=30, what='3 s of the new simulation')
     q = np.array([m.position for m in new_run()])
     assert np.abs(q - Q0).max() < 1e-6, (
         'the new arm is held where it started, not driven along the old trajectory')
