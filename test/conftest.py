@@ -113,6 +113,30 @@ def leaves_nothing_behind():
     assert not kept, f'/dev/shm files still held by processes of this session: {sorted(kept)}'
 
 
+class NewRun:
+    """The joint states of a simulator restarted after ``states`` held ``k`` messages: from
+    the first step back in simulated time on."""
+
+    def __init__(self, states: list, k: int) -> None:
+        self.states, self.k = states, k
+
+    def __call__(self) -> list | None:
+        from arm_sim.client import stamp_of
+
+        states = self.states
+        first = next((i for i in range(max(self.k, 1), len(states))
+                      if stamp_of(states[i]) < stamp_of(states[i - 1])), None)
+        return None if first is None else states[first:]
+
+    def stuck(self) -> bool:
+        """True while the new simulation has not left t = 0, as far as this node can tell:
+        none of its states arrived here yet, or only its first state did."""
+        from arm_sim.client import stamp_of
+
+        run = self()
+        return not run or max(stamp_of(m) for m in run) == 0.0
+
+
 class Ros:
     """The test's own ROS node: subscribe, publish, call services, wait for conditions."""
 

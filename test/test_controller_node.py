@@ -8,6 +8,7 @@ import signal
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Duration, Time
+from conftest import NewRun
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -322,14 +323,10 @@ def test_simulator_restarted_mid_motion_the_controller_holds_the_new_state(ros, 
     ros.wait_for(lambda: problems(diags, '/controller', 'time_jump'), timeout=30,
                  what='the controller to report the time jump')
 
-    def new_run():  # from the first step back in time on
-        first = next((i for i in range(max(k, 1), len(states))
-                      if stamp(states[i]) < stamp(states[i - 1])), None)
-        return None if first is None else states[first:]
-
+    new_run = NewRun(states, k)
     ros.wait_after_restart(lambda: new_run() and stamp(new_run()[-1]) >= 3.0,
-                           lambda: max(stamp(m) for m in (new_run() or states[-1:])) == 0.0,
-                           'simulator', timeout=30, what='3 s of the new simulation')
+                           new_run.stuck, 'simulator', timeout=30,
+                           what='3 s of the new simulation')
     q = np.array([m.position for m in new_run()])
     assert np.abs(q - Q0).max() < 1e-6, (
         'the new arm is held where it started, not driven along the old trajectory')

@@ -7,6 +7,7 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import NewRun
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
@@ -301,10 +302,7 @@ def test_a_motion_cut_by_a_simulator_restart_is_planned_again_and_finished(ros, 
                              what='the planner to plan the goal again')[0]
     assert float(replanned['goal_x']) == PF[0] and float(replanned['goal_y']) == PF[1]
 
-    def new_run():  # from the first step back in time on
-        first = next((i for i in range(max(k, 1), len(states))
-                      if stamp(states[i]) < stamp(states[i - 1])), None)
-        return None if first is None else states[first:]
+    new_run = NewRun(states, k)
 
     def reached():
         run = new_run()
@@ -312,9 +310,8 @@ def test_a_motion_cut_by_a_simulator_restart_is_planned_again_and_finished(ros, 
             np.abs(run[-1].velocity).max() < 1e-3)
 
     try:
-        ros.wait_after_restart(reached, lambda: max(
-            stamp(m) for m in (new_run() or states[-1:])) == 0.0, 'simulator', timeout=60,
-            what='the new arm to reach the goal')
+        ros.wait_after_restart(reached, new_run.stuck, 'simulator', timeout=60,
+                               what='the new arm to reach the goal')
     except pytest.xfail.Exception:
         raise
     except pytest.fail.Exception:
