@@ -16,7 +16,7 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(include=['arm_dynamics*', 'arm_control*', 'arm_planner*',
-                                    'arm_bag*', 'arm_sim*']),
+                                    'arm_bag*', 'arm_common*', 'arm_sim*']),
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),

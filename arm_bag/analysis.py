@@ -61,6 +61,7 @@ import numpy as np
 from arm_bag import metrics
 from arm_bag.reader import BagData, JointStates, PathMsg, read_bag
 from arm_dynamics import TwoLinkArm
+from arm_dynamics.robot import ROBOT_DEFAULTS
 
 PATH_LEAD = 1_000_000_000  # ns: a path may arrive up to 1 s before its trajectory
 
@@ -146,14 +147,12 @@ def analyze(path: str | Path) -> Report:
 
 
 def _robot(bag: BagData, warnings: list[str], joints: int) -> tuple[str, list, list]:
-    from arm_sim.params import ROBOT_PARAMS, by_name
-
-    defaults = by_name(ROBOT_PARAMS)
     robot = bag.robot or {}
     source = 'bag' if bag.robot else 'defaults'
     if not bag.robot:
-        warnings.append('no arm_sim_robot record in the bag: using the TwoLinkArm() '
-                        'defaults (link lengths 1.0, 0.8 m; effort limits 60, 20 N m)')
+        warnings.append('no arm_sim_robot record in the bag: using the default robot '
+                        f"(link lengths {ROBOT_DEFAULTS['link_lengths']} m; effort limits "
+                        f"{ROBOT_DEFAULTS['effort_limits']} N m)")
 
     def get(name: str, fallback: list) -> list:
         value = robot.get(name)
@@ -163,8 +162,8 @@ def _robot(bag: BagData, warnings: list[str], joints: int) -> tuple[str, list, l
             warnings.append(f'arm_sim_robot {name}={value!r} unusable; using {fallback}')
         return [float(v) for v in value] if ok else list(fallback)
 
-    lengths = get('link_lengths', list(TwoLinkArm().link_lengths))
-    limits = get('effort_limits', list(defaults['effort_limits'].default)[:joints]
+    lengths = get('link_lengths', ROBOT_DEFAULTS['link_lengths'])
+    limits = get('effort_limits', ROBOT_DEFAULTS['effort_limits'][:joints]
                  + [math.inf] * max(0, joints - 2))
     return source, lengths, limits
 

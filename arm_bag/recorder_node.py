@@ -32,8 +32,7 @@ from rclpy.qos import (
 
 from arm_bag.msgdefs import MessageDefinitionError, QosProfile, qos_yaml, schema_text, type_hash
 from arm_bag.writer import BagWriteError, BagWriter
-from arm_sim.params import ROBOT_PARAMS, ParamSpec
-from arm_sim.ros_common import (
+from arm_common.node import (
     ConfigError,
     Diagnostics,
     clock_in_namespace,
@@ -41,6 +40,8 @@ from arm_sim.ros_common import (
     run_node,
     steady_clock,
 )
+from arm_common.params import ParamSpec
+from arm_dynamics.robot import ROBOT_PARAMS
 
 SUMMARY = '''
 Records topics into a rosbag2 bag directory (metadata.yaml + <name>_0.mcap, MCAP profile

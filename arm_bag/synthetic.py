@@ -15,14 +15,14 @@ from arm_bag.cdr import (
 )
 from arm_bag.msgdefs import QosProfile, qos_yaml, schema_text, type_hash
 from arm_bag.writer import BagWriter
+from arm_dynamics.robot import JOINT_NAMES, ROBOT_DEFAULTS
 
-NAMES = ('joint1', 'joint2')
+NAMES = JOINT_NAMES
 TOPICS = {'joint_states': 'sensor_msgs/msg/JointState',
           'arm_controller/reference': 'sensor_msgs/msg/JointState',
           'arm_controller/joint_trajectory': 'trajectory_msgs/msg/JointTrajectory',
           'planner/path': 'nav_msgs/msg/Path'}
-ROBOT = {'joint_names': list(NAMES), 'link_lengths': [1.0, 0.8],
-         'effort_limits': [60.0, 20.0]}
+ROBOT = {k: ROBOT_DEFAULTS[k] for k in ('joint_names', 'link_lengths', 'effort_limits')}
 
 
 def open_bag(path: str | Path, robot: dict | None = ROBOT, compression: str = 'none',

@@ -19,14 +19,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory
 
-from arm_control.core import ControllerCore
-from arm_control.laws import LAWS, ControlLaw, Gains
-from arm_control.trajectory import StaleTrajectoryError, TrajectoryError, TrajectoryPoint
-from arm_dynamics.limits import JointLimits
-from arm_dynamics.timing import answer_tag
-from arm_dynamics.two_link import TwoLinkArm
-from arm_sim.params import ROBOT_PARAMS, ParamSpec
-from arm_sim.ros_common import (
+from arm_common.node import (
     ConfigError,
     Diagnostics,
     clock_in_namespace,
@@ -35,6 +28,14 @@ from arm_sim.ros_common import (
     run_node,
     steady_clock,
 )
+from arm_common.params import ParamSpec
+from arm_control.core import ControllerCore
+from arm_control.laws import LAWS, ControlLaw, Gains
+from arm_control.trajectory import StaleTrajectoryError, TrajectoryError, TrajectoryPoint
+from arm_dynamics.limits import JointLimits
+from arm_dynamics.robot import ROBOT_PARAMS
+from arm_dynamics.timing import answer_tag
+from arm_dynamics.two_link import TwoLinkArm
 
 SUMMARY = '''
 Joint-space controller for the 2-R arm. Subscribes joint_states (sensor_msgs/JointState)

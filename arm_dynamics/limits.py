@@ -22,6 +22,9 @@ import numpy as np
 DEFAULT_POSITION_LOWER = (-2.0 * math.pi, -math.pi)
 DEFAULT_POSITION_UPPER = (2.0 * math.pi, math.pi)
 DEFAULT_VELOCITY = (8.0, 8.0)
+#: Torque: 60 and 20 N m. Holding the default arm out straight takes 30.4 and 5.9 N m,
+#: so the limits leave about 2x (shoulder) and 3.4x (elbow) that for acceleration.
+DEFAULT_EFFORT = (60.0, 20.0)
 
 
 @dataclass(frozen=True)

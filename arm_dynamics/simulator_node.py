@@ -17,7 +17,18 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
+from arm_common.node import (
+    ConfigError,
+    Diagnostics,
+    clock_in_namespace,
+    declare_parameters,
+    on_parameter_changes,
+    run_node,
+    steady_clock,
+)
+from arm_common.params import ParamSpec
 from arm_dynamics.limits import JointLimits
+from arm_dynamics.robot import ROBOT_PARAMS
 from arm_dynamics.simulation import CommandError, SimulatorCore, make_model, validate_command
 from arm_dynamics.timing import (
     ADVANCE,
@@ -27,16 +38,6 @@ from arm_dynamics.timing import (
     TIMING_MODES,
     Timekeeper,
     parse_answer_tag,
-)
-from arm_sim.params import ROBOT_PARAMS, ParamSpec
-from arm_sim.ros_common import (
-    ConfigError,
-    Diagnostics,
-    clock_in_namespace,
-    declare_parameters,
-    on_parameter_changes,
-    run_node,
-    steady_clock,
 )
 
 SUMMARY = '''

@@ -24,7 +24,18 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from arm_common.node import (
+    ConfigError,
+    Diagnostics,
+    clock_in_namespace,
+    declare_parameters,
+    on_parameter_changes,
+    run_node,
+    steady_clock,
+)
+from arm_common.params import ParamSpec
 from arm_dynamics.limits import JointLimits
+from arm_dynamics.robot import ROBOT_PARAMS
 from arm_planner.kinematics import PlanningError
 from arm_planner.planner import (
     ELBOW_CHOICES,
@@ -38,16 +49,6 @@ from arm_planner.planner import (
     plan_goal,
 )
 from arm_planner.time_scaling import KINDS
-from arm_sim.params import ROBOT_PARAMS, ParamSpec
-from arm_sim.ros_common import (
-    ConfigError,
-    Diagnostics,
-    clock_in_namespace,
-    declare_parameters,
-    on_parameter_changes,
-    run_node,
-    steady_clock,
-)
 
 SUMMARY = '''
 Plans the arm's motion to each goal_pose (geometry_msgs/PoseStamped: x, y of the

@@ -1,5 +1,7 @@
-"""arm_sim glue: parameter specifications, node-process launching, ROS helpers and the CLI.
+"""arm_sim, the user-facing top layer: the ``arm-sim`` CLI, the demo, the node-process
+launcher, the client helpers and the composed executable.
 
-``arm_sim.params`` and ``arm_sim.launcher`` are ROS-free; ``arm_sim.ros_common`` holds the
-rclpy code the nodes share.
+It stands on everything else (``arm_common`` base, then ``arm_dynamics``, ``arm_control``,
+``arm_planner``, ``arm_bag``); nothing imports it back (``test/test_layers.py``).
+``arm_sim.launcher`` is ROS-free.
 """

@@ -88,7 +88,7 @@ def cmd_bringup(args: argparse.Namespace) -> int:
     overrides['composed'] = overrides['simulator']  # per node, by node name
     procs = []
     for name in nodes:
-        # Each node resolves /clock in its own namespace (arm_sim.ros_common).
+        # Each node resolves /clock in its own namespace (arm_common.node).
         procs.append(NodeProcess(name, params_file=config_file(),
                                  node_params=overrides.get(name),
                                  namespace=ns or None, domain_id=domain,

@@ -18,7 +18,7 @@ from rcl_interfaces.srv import SetParameters
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
-from arm_sim.ros_common import set_parameters_request
+from arm_common.node import set_parameters_request
 
 
 @dataclass(frozen=True)

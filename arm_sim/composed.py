@@ -10,12 +10,12 @@ command comes back without leaving the process or waking another one. Measured i
 
 from __future__ import annotations
 
+from arm_common.node import run_node
 from arm_control.controller_node import CONTROL_PARAMS, ControllerNode
 from arm_control.controller_node import SUMMARY as CONTROLLER_SUMMARY
+from arm_dynamics.robot import ROBOT_PARAMS
 from arm_dynamics.simulator_node import SIM_PARAMS, SimulatorNode
 from arm_dynamics.simulator_node import SUMMARY as SIMULATOR_SUMMARY
-from arm_sim.params import ROBOT_PARAMS
-from arm_sim.ros_common import run_node
 
 SUMMARY = f'''
 The simulator and the controller composed in one process with one executor (nodes

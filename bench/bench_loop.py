@@ -14,7 +14,7 @@ node:
    them (DDS reception and publication timestamps from the message info, all on one host
    clock; commands name the state they answer in ``layout.dim[0].label``);
 3. executors (optional, ``--executors``) -- the same loops with the nodes' executor
-   replaced at start-up through ``arm_sim.ros_common.EXECUTOR`` (no file is edited):
+   replaced at start-up through ``arm_common.node.EXECUTOR`` (no file is edited):
    ``stock`` is what ships (rclpy.experimental.EventsExecutor in ``spin_once`` loops),
    ``single`` is SingleThreadedExecutor and ``multi`` MultiThreadedExecutor, both in the
    same ``spin_once`` loops.
@@ -49,11 +49,11 @@ LATE_LIMIT = 0.01  # a real-time rate is "held" with fewer late cycles than this
 LOCKSTEP_TARGET = 1.0  # x real time at 1 kHz
 
 # Run a node with its executor replaced: python -c WRAPPER VARIANT MODULE [--ros-args ...].
-# run_node() looks SingleThreadedExecutor up in arm_sim.ros_common at call time.
+# run_node() looks SingleThreadedExecutor up in arm_common.node at call time.
 WRAPPER = '''
 import importlib, sys
 from rclpy import executors
-from arm_sim import ros_common
+from arm_common import node as ros_common
 variant, module = sys.argv[1], sys.argv[2]
 del sys.argv[1:3]
 if variant == 'single':

@@ -16,11 +16,11 @@ import tracemalloc
 
 import numpy as np
 
+from arm_dynamics.robot import ROBOT_DEFAULTS
 from arm_planner import PlannerSettings, PlanningError, plan_goal
 from arm_planner.planner import MAX_DURATION, make_arm
-from arm_sim.params import ROBOT_PARAMS
 
-ROBOT = {s.name: s.default for s in ROBOT_PARAMS}
+ROBOT = ROBOT_DEFAULTS
 Q0 = np.array([-0.4, 1.2])
 GOAL = np.array([0.5, 1.0])
 

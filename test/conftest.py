@@ -191,7 +191,7 @@ class Ros:
         returns the SetParametersResult list."""
         from rcl_interfaces.srv import SetParameters
 
-        from arm_sim.ros_common import set_parameters_request
+        from arm_common.node import set_parameters_request
 
         return self.call(SetParameters, f'{node}/set_parameters',
                          set_parameters_request(values)).results

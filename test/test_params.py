@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from arm_sim.params import ParamSpec, command_line_parameters
+from arm_common.params import ParamSpec, command_line_parameters
 
 RATE = ParamSpec('publish_rate', 'double', 100.0, 'rate', 'Hz', minimum=0.0, strict_min=True)
 GAINS = ParamSpec('gains.kp', 'doubles', [100.0, 50.0], 'gains', 'N m/rad', length=2)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PURE_PACKAGES = ('arm_dynamics', 'arm_control', 'arm_planner', 'arm_bag')
-PURE_GLUE = ('arm_sim.params', 'arm_sim.launcher', 'arm_sim.throttle')
+PURE_GLUE = ('arm_common.params', 'arm_sim.launcher', 'arm_common.throttle')
 
 
 def pure_modules() -> list[str]:
@@ -39,7 +39,7 @@ def test_pure_modules_do_not_import_rclpy():
 
 
 def test_the_check_notices_a_module_that_imports_rclpy():
-    code = 'import sys, arm_sim.ros_common; print("rclpy" in sys.modules)'
+    code = 'import sys, arm_common.node; print("rclpy" in sys.modules)'
     out = subprocess.run([sys.executable, '-c', code], cwd=ROOT, capture_output=True,
                          text=True, timeout=120)
     assert out.stdout.strip() == 'True', 'the detection itself works'

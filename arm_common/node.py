@@ -30,8 +30,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
-from arm_sim.params import ParamSpec, command_line_parameters
-from arm_sim.throttle import Throttle
+from arm_common.params import ParamSpec, command_line_parameters
+from arm_common.throttle import Throttle
 
 LEVELS = {'OK': DiagnosticStatus.OK, 'WARN': DiagnosticStatus.WARN,
           'ERROR': DiagnosticStatus.ERROR, 'STALE': DiagnosticStatus.STALE}

@@ -1,4 +1,4 @@
-"""Parameter specifications shared by the nodes, and their validation (no rclpy).
+"""Parameter specifications and their validation (no rclpy, nothing else of arm_sim).
 
 Each :class:`ParamSpec` knows its default, unit, valid range and whether it may change at
 run time; :meth:`ParamSpec.check` returns the reason a value is refused, or None.
@@ -12,12 +12,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import yaml
-
-from arm_dynamics.limits import (
-    DEFAULT_POSITION_LOWER,
-    DEFAULT_POSITION_UPPER,
-    DEFAULT_VELOCITY,
-)
 
 
 @dataclass(frozen=True)
@@ -184,43 +178,3 @@ def _scalar(node: yaml.Node) -> Any:
         except ValueError:
             return value
     return value
-
-
-def _pair(name: str, default: tuple, description: str, unit: str, **kw) -> ParamSpec:
-    return ParamSpec(name, 'doubles', list(default), description, unit, length=2,
-                     read_only=True, **kw)
-
-
-#: Robot description shared by every node (``/**`` in config/arm.yaml); read-only.
-ROBOT_PARAMS: tuple[ParamSpec, ...] = (
-    ParamSpec('joint_names', 'strings', ['joint1', 'joint2'],
-              'Joint names, shoulder then elbow', length=2, read_only=True),
-    _pair('link_lengths', (1.0, 0.8), 'Link lengths, joint axis to next axis / tip', 'm',
-          minimum=0.0, strict_min=True, maximum=100.0),
-    _pair('com_distances', (0.5, 0.4), 'Joint axis to link centre of gravity', 'm',
-          minimum=0.0, maximum=100.0),
-    _pair('link_masses', (2.0, 1.5), 'Link masses', 'kg', minimum=0.0, strict_min=True,
-          maximum=1e4),
-    _pair('link_inertias', (0.1, 0.08), 'Link inertias about the CG, normal to the plane',
-          'kg m^2', minimum=0.0, maximum=1e4),
-    ParamSpec('gravity', 'double', 9.81, 'Gravity magnitude, acting along -y', 'm/s^2',
-              minimum=0.0, maximum=100.0, read_only=True),
-    _pair('joint_damping', (0.0, 0.0), 'Viscous joint friction', 'N m s/rad', minimum=0.0,
-          maximum=1e4),
-    _pair('effort_limits', (60.0, 20.0), 'Joint torque limits (applied torque is clipped)',
-          'N m', minimum=0.0, strict_min=True, maximum=1e6),
-    _pair('position_limits_lower', DEFAULT_POSITION_LOWER,
-          'Joint position lower limits (-.inf: none); default shoulder one turn, elbow not '
-          'past folded', 'rad', allow_inf=True),
-    _pair('position_limits_upper', DEFAULT_POSITION_UPPER,
-          'Joint position upper limits (.inf: none); must exceed the lower', 'rad',
-          allow_inf=True),
-    _pair('velocity_limits', DEFAULT_VELOCITY,
-          'Joint speed limits (.inf: none); default about 3x the demo\'s fastest motion',
-          'rad/s', minimum=0.0, strict_min=True, allow_inf=True),
-)
-
-
-def by_name(specs: tuple[ParamSpec, ...]) -> dict[str, ParamSpec]:
-    """Index specs by parameter name."""
-    return {s.name: s for s in specs}

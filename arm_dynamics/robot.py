@@ -1,0 +1,71 @@
+"""The robot parameters every node shares (``/**`` in config/arm.yaml), as one table (no rclpy).
+
+The defaults come from where the facts live: the model's constructor defaults
+(:class:`~arm_dynamics.two_link.TwoLinkArm`), the joint limits' defaults
+(:mod:`arm_dynamics.limits`) and :data:`JOINT_NAMES`; this module adds only what a
+parameter tool shows (unit, range, description). The simulator, controller, planner,
+recorder, analysis and synthetic bags all read them from here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import fields
+
+from arm_common.params import ParamSpec
+from arm_dynamics.limits import (
+    DEFAULT_EFFORT,
+    DEFAULT_POSITION_LOWER,
+    DEFAULT_POSITION_UPPER,
+    DEFAULT_VELOCITY,
+)
+from arm_dynamics.two_link import TwoLinkArm
+
+#: Joint names, shoulder then elbow.
+JOINT_NAMES = ('joint1', 'joint2')
+
+#: TwoLinkArm's constructor defaults by parameter name.
+MODEL_DEFAULTS = {f.name: f.default for f in fields(TwoLinkArm) if f.init}
+
+
+def _pair(name: str, default: tuple, description: str, unit: str, **kw) -> ParamSpec:
+    return ParamSpec(name, 'doubles', list(default), description, unit, length=2,
+                     read_only=True, **kw)
+
+
+def _model(name: str, description: str, unit: str, **kw) -> ParamSpec:
+    default = MODEL_DEFAULTS[name]
+    if isinstance(default, tuple):
+        return _pair(name, default, description, unit, **kw)
+    return ParamSpec(name, 'double', default, description, unit, read_only=True, **kw)
+
+
+#: Robot description shared by every node; read-only.
+ROBOT_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec('joint_names', 'strings', list(JOINT_NAMES),
+              'Joint names, shoulder then elbow', length=2, read_only=True),
+    _model('link_lengths', 'Link lengths, joint axis to next axis / tip', 'm',
+           minimum=0.0, strict_min=True, maximum=100.0),
+    _model('com_distances', 'Joint axis to link centre of gravity', 'm',
+           minimum=0.0, maximum=100.0),
+    _model('link_masses', 'Link masses', 'kg', minimum=0.0, strict_min=True, maximum=1e4),
+    _model('link_inertias', 'Link inertias about the CG, normal to the plane', 'kg m^2',
+           minimum=0.0, maximum=1e4),
+    _model('gravity', 'Gravity magnitude, acting along -y', 'm/s^2',
+           minimum=0.0, maximum=100.0),
+    _model('joint_damping', 'Viscous joint friction', 'N m s/rad', minimum=0.0,
+           maximum=1e4),
+    _pair('effort_limits', DEFAULT_EFFORT, 'Joint torque limits (applied torque is clipped)',
+          'N m', minimum=0.0, strict_min=True, maximum=1e6),
+    _pair('position_limits_lower', DEFAULT_POSITION_LOWER,
+          'Joint position lower limits (-.inf: none); default shoulder one turn, elbow not '
+          'past folded', 'rad', allow_inf=True),
+    _pair('position_limits_upper', DEFAULT_POSITION_UPPER,
+          'Joint position upper limits (.inf: none); must exceed the lower', 'rad',
+          allow_inf=True),
+    _pair('velocity_limits', DEFAULT_VELOCITY,
+          'Joint speed limits (.inf: none); default about 3x the demo\'s fastest motion',
+          'rad/s', minimum=0.0, strict_min=True, allow_inf=True),
+)
+
+#: The defaults by name, as a bag's ``arm_sim_robot`` record would hold them.
+ROBOT_DEFAULTS = {s.name: s.default for s in ROBOT_PARAMS}
