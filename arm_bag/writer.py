@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import os
 import struct
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -116,7 +115,7 @@ class BagWriter:
         self.metadata_count = 0
         self.failed: str | None = None
         self.closed = False
-        self._file: BinaryIO = open(self.path, 'wb')  # noqa: SIM115 (closed in close())
+        self._file: BinaryIO = open(self.path, 'wb')  # closed in close()
         self._good = 0  # file offset after the last complete record group
         self._write(MAGIC + _record(OP_HEADER, _str('ros2') + _str(LIBRARY)))
 
@@ -139,7 +138,7 @@ class BagWriter:
         except OSError:
             pass
         try:  # reopen and cut the partial record so the file ends on a record boundary
-            self._file = open(self.path, 'r+b')  # noqa: SIM115
+            self._file = open(self.path, 'r+b')
             self._file.truncate(self._good)
             self._file.seek(self._good)
         except OSError:
@@ -365,7 +364,3 @@ def _compressor(name: str):
         return lz4.frame.compress
     return lambda b: b
 
-
-def now_ns() -> int:
-    """Wall-clock time [ns since the epoch]: the receive time the recorder logs."""
-    return time.time_ns()

@@ -72,9 +72,9 @@ class LagrangianSystem:
                  joint_damping: Sequence[float] | np.ndarray | None = None) -> None:
         # ValueError (not TypeError): the contract's one exception type for bad arguments.
         if not callable(mass_matrix):
-            raise ValueError(f'mass_matrix must be callable, got {mass_matrix!r}')  # noqa: TRY004
+            raise ValueError(f'mass_matrix must be callable, got {mass_matrix!r}')
         if not callable(potential):
-            raise ValueError(f'potential must be callable, got {potential!r}')  # noqa: TRY004
+            raise ValueError(f'potential must be callable, got {potential!r}')
         if isinstance(n_dof, bool) or not isinstance(n_dof, (int, np.integer)) or n_dof < 1:
             raise ValueError(f'n_dof must be an integer >= 1, got {n_dof!r}')
         n = int(n_dof)

@@ -49,7 +49,7 @@ LATE_LIMIT = 0.01  # a real-time rate is "held" with fewer late cycles than this
 LOCKSTEP_TARGET = 1.0  # x real time at 1 kHz
 
 # Run a node with its executor replaced: python -c WRAPPER VARIANT MODULE [--ros-args ...].
-# run_node() looks SingleThreadedExecutor up in arm_common.node at call time.
+# run_node() looks arm_common.node.EXECUTOR up at call time (EventsExecutor as shipped).
 WRAPPER = '''
 import importlib, sys
 from rclpy import executors

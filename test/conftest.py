@@ -276,6 +276,18 @@ class Launcher:
         return proc
 
 
+#: Test modules that start processes although they use none of the ROS fixtures.
+PROCESS_MODULES = ('test_demo', 'test_colcon_build')
+
+
+def pytest_collection_modifyitems(items) -> None:
+    """Mark every test that starts node processes or a ROS context ``process`` (the slow
+    tier: minutes); ``-m 'not process'`` runs the pure tier in seconds."""
+    for item in items:
+        if ({'launch', 'ros', 'ros_session'} & set(getattr(item, 'fixturenames', ()))
+                or item.module.__name__ in PROCESS_MODULES):
+            item.add_marker(pytest.mark.process)
+
 @pytest.hookimpl(wrapper=True, tryfirst=True)
 def pytest_runtest_makereport(item, call):
     report = yield
