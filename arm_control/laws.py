@@ -14,6 +14,10 @@ With tracking error ``e = q_des - q`` and ``e' = qd_des - qd``:
   ``gains.<joint>.i_clamp_*``) and frozen while the output saturates.
 
 The result is saturated at the controller's effort limits and the saturation reported.
+
+References: Siciliano et al., *Robotics: Modelling, Planning and Control* (2009), §8.3
+(independent joint control), §8.5.2 (PD with gravity compensation), §8.5.3 (inverse
+dynamics control); Lynch and Park, *Modern Robotics* (2017), §11.4.
 """
 
 from __future__ import annotations

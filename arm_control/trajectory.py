@@ -7,6 +7,10 @@
   positions and velocities, linear with positions only. Before the first point's
   ``time_from_start`` the trajectory starts from the state it was given at ``t = 0``;
   after the last point the last position is held with zero velocity.
+
+References: cubic and quintic interpolating polynomials, Siciliano et al., *Robotics:
+Modelling, Planning and Control* (2009), §4.2.1-4.2.2; ros2_controllers'
+joint_trajectory_controller (splines and validation).
 """
 
 from __future__ import annotations

@@ -4,6 +4,9 @@
   torque held over the step (what the simulator node does every physics step).
 * :func:`simulate` -- run a model under any torque law over time and return arrays; the
   ``'solve_ivp'`` method is the accuracy reference (scipy's DOP853 at tight tolerances).
+
+References: classic RK4 and DOP853: Hairer, Norsett, Wanner, *Solving Ordinary
+Differential Equations I* (2nd ed., 1993), Ch. II.
 """
 
 from __future__ import annotations

@@ -27,6 +27,10 @@ Builders for the systems the project and the lecture use:
 
 Everything is pure numpy; a system also provides ``n_dof`` and ``step`` so that
 :func:`arm_dynamics.integrate.simulate` can run it.
+
+References: Siciliano et al., *Robotics: Modelling, Planning and Control* (2009), §7.1
+(Christoffel symbols); complex-step derivatives: Martins, Sturdza,
+Alonso, "The complex-step derivative approximation", ACM TOMS 29(3), 2003.
 """
 
 from __future__ import annotations

@@ -23,6 +23,10 @@ on link ``i`` at joint ``i``, ``f_{n+1} = 0``, ``mu_{n+1} = 0``::
     f_i  = f_{i+1} + m_i a_ci
     mu_i = mu_{i+1} + I_i alpha_i + (lc_i e_i) x (m_i a_ci) + (l_i e_i) x f_{i+1}
     tau_i = mu_i + b_i q_i'
+
+References: Siciliano et al., *Robotics: Modelling, Planning and Control* (2009), §7.5;
+Featherstone, *Rigid Body Dynamics Algorithms* (2008), §5.3; Craig, *Introduction to
+Robotics* (3rd ed., 2005), §6.5 (iterative Newton-Euler).
 """
 
 from __future__ import annotations

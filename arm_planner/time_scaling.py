@@ -13,6 +13,10 @@ shape (and so the geometric path and the sampling in ``tau``) stays the same.
   at both ends; the acceleration jumps at ``tau = blend`` and ``1 - blend``
   (:attr:`TimeScaling.breaks`). Peak ``sigma' = 1 / (1 - blend)``, ``|sigma''| =
   1 / (blend (1 - blend))``.
+
+References: Lynch and Park, *Modern Robotics* (2017), §9.2.2 (polynomial and trapezoidal
+time scalings); Siciliano et al., *Robotics: Modelling, Planning and Control* (2009),
+§4.2.1.
 """
 
 from __future__ import annotations
