@@ -140,6 +140,7 @@ class ControllerCore:
             self.law.reset()
         dt = 0.0 if self.last is None or jump else max(t - self.last[0], 0.0)
         self.last = (t, np.array(q, dtype=float), np.array(qd, dtype=float))
+        assert self.trajectory is not None  # hold() set one if there was none
         q_des, qd_des, qdd_des = self.trajectory.sample(t - self.start)
         return Step(self.law(q, qd, q_des, qd_des, qdd_des, dt), q_des, qd_des, qdd_des,
                     jump)

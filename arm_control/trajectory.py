@@ -86,7 +86,7 @@ def validate_trajectory(joint_names: Sequence[str], points: Sequence[TrajectoryP
     if times[0] < 0 or (np.diff(times) <= 0).any():
         raise TrajectoryError(f'time_from_start must be >= 0 and strictly increasing, got '
                               f'{times.tolist()}')
-    fields = {}
+    fields: dict[str, np.ndarray | None] = {}
     for field in ('positions', 'velocities', 'accelerations'):
         sizes = [len(getattr(p, field)) for p in points]
         if field == 'positions' and any(s != n for s in sizes):
@@ -104,7 +104,9 @@ def validate_trajectory(joint_names: Sequence[str], points: Sequence[TrajectoryP
         fields[field] = values
     if fields['accelerations'] is not None and fields['velocities'] is None:
         raise TrajectoryError('accelerations given without velocities')
-    return times, fields['positions'], fields['velocities'], fields['accelerations']
+    positions = fields['positions']
+    assert positions is not None  # every point has n positions (checked above)
+    return times, positions, fields['velocities'], fields['accelerations']
 
 
 class Trajectory:

@@ -24,7 +24,8 @@ from arm_dynamics._validate import finite_scalar, state_array
 class Model(Protocol):
     """What :func:`simulate` and the simulator node need from a model."""
 
-    n_dof: int
+    @property
+    def n_dof(self) -> int: ...
 
     def forward_dynamics(self, q, qd, tau) -> np.ndarray: ...
 

@@ -36,6 +36,7 @@ Alonso, "The complex-step derivative approximation", ACM TOMS 29(3), 2003.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -120,7 +121,7 @@ class LagrangianSystem:
             raise ValueError(f'mass_matrix returned non-finite values at q={q!r}')
         return d
 
-    def _call_pe(self, q: np.ndarray) -> complex:
+    def _call_pe(self, q: np.ndarray) -> Any:
         pe = np.asarray(self._pe_fn(q))
         if pe.size != 1:
             raise ValueError(f'potential must return a scalar, got shape {pe.shape}')

@@ -58,12 +58,13 @@ class NewtonEulerChain:
     joint_damping : (n,) N m s/rad, each >= 0 (default zeros)
     """
 
-    link_lengths: tuple[float, ...]
-    com_distances: tuple[float, ...]
-    link_masses: tuple[float, ...]
-    link_inertias: tuple[float, ...]
+    # Any sequences on the way in; tuples of floats once validated.
+    link_lengths: Sequence[float]
+    com_distances: Sequence[float]
+    link_masses: Sequence[float]
+    link_inertias: Sequence[float]
     gravity: float = 9.81
-    joint_damping: tuple[float, ...] | None = None
+    joint_damping: Sequence[float] | None = None
 
     def __post_init__(self) -> None:
         lengths = self.link_lengths
@@ -121,6 +122,8 @@ class NewtonEulerChain:
         # Backward pass: force and moment each link receives at its own joint.
         fx, fy, mu = zero, zero, zero                 # from link i+1 (none beyond the tip)
         tau = [zero] * n
+        damping = self.joint_damping
+        assert damping is not None  # __post_init__ replaced None by zeros
         for i in reversed(range(n)):
             cx, sx, alpha, acx, acy = links[i]
             m, lc, li = self.link_masses[i], self.com_distances[i], self.link_lengths[i]
@@ -128,7 +131,7 @@ class NewtonEulerChain:
             mu = (mu + self.link_inertias[i] * alpha + _cross(lc * cx, lc * sx, max_, may)
                   + _cross(li * cx, li * sx, fx, fy))
             fx, fy = fx + max_, fy + may
-            tau[i] = mu + self.joint_damping[i] * qd[..., i]
+            tau[i] = mu + damping[i] * qd[..., i]
         return np.stack(tau, -1)
 
 

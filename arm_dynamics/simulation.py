@@ -130,7 +130,7 @@ class SimulatorCore:
             return
         self.applied = np.clip(self.command, -self.limits, self.limits)
         with np.errstate(all='ignore'):
-            if self.hard_stops:
+            if self.hard_stops and self.joint_limits is not None:
                 q, qd = self.q, self.qd
                 for _ in range(self.substeps):
                     q, qd = self.joint_limits.hard_stop(

@@ -143,7 +143,8 @@ class Timekeeper:
         self.behind_s = 0.0  # real_time: simulated time given up by overruns
         self.late_waits = 0  # lockstep: waits longer than report_after_ns
         self.longest_wait_s = 0.0
-        self._win = (None, 0, 0, 0)  # (wall ns, sim ns, periods, late) at window start
+        # (wall ns, sim ns, periods, late) at the reporting window's start
+        self._win: tuple[int | None, int, int, int] = (None, 0, 0, 0)
 
     # ------------------------------------------------------------------ state
     def set_mode(self, mode: str) -> None:

@@ -98,11 +98,9 @@ class NodeProcess:
         self.cmd = executable(name) + (extra_args or []) + (
             ['--ros-args', *ros_args] if ros_args else [])
         self.log_path = Path(log_path) if log_path else None
-        out = open(self.log_path, 'wb') if self.log_path else subprocess.DEVNULL
-        self.proc = subprocess.Popen(self.cmd, env=node_env(domain_id), stdout=out,
-                                     stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
-        if out is not subprocess.DEVNULL:
-            out.close()
+        with open(self.log_path or os.devnull, 'wb') as out:
+            self.proc = subprocess.Popen(self.cmd, env=node_env(domain_id), stdout=out,
+                                         stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
 
     def alive(self) -> bool:
         return self.proc.poll() is None
