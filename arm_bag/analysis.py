@@ -19,10 +19,12 @@ Per segment:
   point (the set point).
 * regulation: settling time (2% band of the step from the first position of the segment
   to the set point, per joint and overall = the largest) and overshoot (% of the step).
-* straight_line: perpendicular deviation of the end effector (forward kinematics of the
-  recorded positions, link lengths from the ``arm_sim_robot`` record) from the line
-  through the path's first and last pose, from the path's start on (its first pose's
-  stamp: later than the trajectory's when the planner first brought a moving arm to rest).
+* straight_line: the end effector (forward kinematics of the recorded positions, link
+  lengths from the ``arm_sim_robot`` record) against the commanded segment from the path's
+  first pose to its last, from the path's start on (its first pose's stamp: later than the
+  trajectory's when the planner first brought a moving arm to rest): its distance from the
+  segment (a tip beyond an end is measured to that end, not to the infinite line) and how
+  far it went along the line past the end and before the start (overshoot).
 * torque: peak and RMS applied torque (JointState effort), saturated fraction
   (|effort| >= effort_limit - 1e-9), energy delivered (trapezoid integral of tau . qd).
 
@@ -44,8 +46,11 @@ per-joint values are lists in ``joint_names`` order.
   - ``tracking_rms``, ``tracking_max``, ``final_error`` [rad per joint]
   - ``settling_time`` [s per joint], ``settling_time_overall`` s, ``overshoot`` [% per
     joint] (regulation only, else null)
-  - ``line_start``, ``line_end`` [x, y m], ``deviation_max``, ``deviation_rms`` m
-    (straight_line only, else null)
+  - ``line_start``, ``line_end`` [x, y m]; ``deviation_max``, ``deviation_rms`` m: largest
+    and RMS distance of the tip from the segment ``line_start``-``line_end``;
+    ``line_overshoot_end`` m: how far the tip went past ``line_end`` along the line,
+    ``line_overshoot_start`` m: how far before ``line_start`` (both >= 0; straight_line
+    only, else null)
   - ``torque_peak``, ``torque_rms`` [N m per joint], ``saturated_fraction`` [per joint],
     ``energy`` J
 """
@@ -91,6 +96,8 @@ class Segment:
     line_end: list | None = None
     deviation_max: float | None = None
     deviation_rms: float | None = None
+    line_overshoot_end: float | None = None
+    line_overshoot_start: float | None = None
     torque_peak: list | None = None
     torque_rms: list | None = None
     saturated_fraction: list | None = None
@@ -361,11 +368,14 @@ def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
         a, b = points[0], points[-1]
         measured = np.isfinite(q).all(axis=1) & (js.stamp[sl] >= line_from)
         xy = arm.forward_kinematics(q[measured])
-        dev = metrics.line_deviation(xy, a, b)
+        dev = metrics.segment_deviation(xy, a, b)
+        before, past = metrics.overshoot_along_line(xy, a, b)
         seg.line_start, seg.line_end = _list(a), _list(b)
         if len(dev):
             seg.deviation_max = float(dev.max())
             seg.deviation_rms = float(np.sqrt(np.mean(dev * dev)))
+            seg.line_overshoot_end = float(past.max())
+            seg.line_overshoot_start = float(before.max())
         seg.series.update(xy=xy, deviation=dev, line=(a, b))
     elif arm is not None:
         seg.series['xy'] = arm.forward_kinematics(q[np.isfinite(q).all(axis=1)])

@@ -241,9 +241,10 @@ def decode_joint_states_bulk(buf: np.ndarray, offsets: np.ndarray,
 
 
 @dataclass
-class Trajectory:
-    """A trajectory_msgs/JointTrajectory: ``positions`` (P, J) rad, ``time_from_start``
-    (P,) s; ``stamp`` [ns] (0 = start now)."""
+class JointTrajectoryMsg:
+    """A decoded trajectory_msgs/JointTrajectory: ``positions`` (P, J) rad,
+    ``time_from_start`` (P,) s; ``stamp`` [ns] (0 = start now). Not the controller's
+    :class:`arm_control.trajectory.Trajectory`, which samples a motion."""
 
     stamp: int
     joint_names: tuple[str, ...]
@@ -251,7 +252,7 @@ class Trajectory:
     time_from_start: np.ndarray
 
 
-def decode_joint_trajectory(data: bytes | memoryview) -> Trajectory:
+def decode_joint_trajectory(data: bytes | memoryview) -> JointTrajectoryMsg:
     c = Cursor(data)
     stamp, _ = c.header()
     names = tuple(c.strings())
@@ -267,7 +268,7 @@ def decode_joint_trajectory(data: bytes | memoryview) -> Trajectory:
     if any(len(r) != width for r in rows):
         raise CdrError(f'trajectory point positions do not match the {width} joint names')
     positions = np.array(rows, dtype=np.float64).reshape(len(rows), width)
-    return Trajectory(stamp, names, positions, np.array(times, dtype=np.float64))
+    return JointTrajectoryMsg(stamp, names, positions, np.array(times, dtype=np.float64))
 
 
 def _pose_xy(c: Cursor) -> tuple[float, float]:
@@ -376,10 +377,3 @@ def encode_path(stamp_ns: int, xy, frame_id: str = 'base_link',
         w.float64s([x, y, 0.0, 0.0, 0.0, 0.0, 1.0], with_count=False)
     return bytes(w.buf)
 
-
-def encode_pose_stamped(stamp_ns: int, x: float, y: float, frame_id: str = '') -> bytes:
-    """geometry_msgs/PoseStamped as CDR bytes."""
-    w = Writer()
-    w.header(stamp_ns, frame_id)
-    w.float64s([x, y, 0.0, 0.0, 0.0, 0.0, 1.0], with_count=False)
-    return bytes(w.buf)

@@ -80,17 +80,68 @@ def overshoot(q, q_start: float, q_final: float) -> float | None:
     return float(max(0.0, past.max()) / abs(step) * 100.0)
 
 
-def line_deviation(xy, a, b) -> np.ndarray:
-    """Perpendicular distance [m] of points ``xy`` (N, 2) from the line through ``a`` and
-    ``b`` (2,); if ``a == b``, the distance from ``a``."""
+def _segment(xy, a, b) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Points ``xy`` as (N, 2), their offsets ``xy - a`` (N, 2), ``b - a`` (2,) and its
+    length, all in m."""
     p = np.asarray(xy, np.float64).reshape(-1, 2)
-    a = np.asarray(a, np.float64)
-    d = np.asarray(b, np.float64) - a
-    length = float(np.hypot(*d))
-    r = p - a
+    a = np.asarray(a, np.float64).reshape(2)
+    d = np.asarray(b, np.float64).reshape(2) - a
+    return p, p - a, d, float(np.hypot(d[0], d[1]))
+
+
+def segment_deviation(xy, a, b) -> np.ndarray:
+    """Distance of each point from the segment from ``a`` to ``b`` (not the infinite line).
+
+    A point alongside the segment is measured perpendicular to it; a point beyond an end is
+    measured to that end point.
+
+    Parameters
+    ----------
+    xy : (N, 2) array, m
+        Points, e.g. the tip positions of a run.
+    a, b : (2,) arrays, m
+        Start and end of the commanded segment; ``a == b`` is allowed (the distance from
+        ``a``).
+
+    Returns
+    -------
+    (N,) array, m, >= 0.
+    """
+    _, r, d, length = _segment(xy, a, b)
     if length == 0.0:
         return np.hypot(r[:, 0], r[:, 1])
-    return np.abs(d[0] * r[:, 1] - d[1] * r[:, 0]) / length
+    s = np.clip(r @ d / (length * length), 0.0, 1.0)
+    off = r - s[:, None] * d
+    return np.hypot(off[:, 0], off[:, 1])
+
+
+def overshoot_along_line(xy, a, b) -> tuple[np.ndarray, np.ndarray]:
+    """How far each point lies beyond the ends of the segment ``a``-``b``, along the line.
+
+    The point is projected on the line through ``a`` and ``b``; the result is how far that
+    projection lies before ``a`` and past ``b`` (0 when it lies between them). The distance
+    across the line does not count here (:func:`segment_deviation` has it).
+
+    Parameters
+    ----------
+    xy : (N, 2) array, m
+        Points, e.g. the tip positions of a run.
+    a, b : (2,) arrays, m
+        Start and end of the commanded segment. A zero-length segment has no direction:
+        both results are 0 (its whole distance is in :func:`segment_deviation`).
+
+    Returns
+    -------
+    before_start, past_end : (N,) arrays, m, >= 0
+        Distance along the line before ``a`` (opposite to the motion) and past ``b`` (in
+        the direction of motion).
+    """
+    p, r, d, length = _segment(xy, a, b)
+    if length == 0.0:
+        zero = np.zeros(len(p))
+        return zero, zero.copy()
+    along = r @ d / length  # m from a towards b
+    return np.maximum(0.0, -along), np.maximum(0.0, along - length)
 
 
 def is_straight_line(points, tol: float = 1e-6) -> bool:
@@ -99,14 +150,9 @@ def is_straight_line(points, tol: float = 1e-6) -> bool:
     p = np.asarray(points, np.float64).reshape(-1, 2)
     if len(p) < 3 or not np.isfinite(p).all():
         return False
-    a, b = p[0], p[-1]
-    d = b - a
-    length2 = float(d @ d)
-    if length2 == 0.0:
+    if (p[0] == p[-1]).all():
         return False
-    s = np.clip((p - a) @ d / length2, 0.0, 1.0)
-    dist = np.hypot(*(p - (a + s[:, None] * d)).T)
-    return bool(dist.max() <= tol)
+    return bool(segment_deviation(p, p[0], p[-1]).max() <= tol)
 
 
 def torque_stats(effort, effort_limits) -> dict[str, np.ndarray]:

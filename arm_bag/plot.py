@@ -48,7 +48,7 @@ def plot_report(reports: Report | list[Report], path: str | Path) -> Path:
     ax_tau.set(title='applied torque', xlabel='t [s]', ylabel='tau [N m]')
     ax_xy.set(title='end effector (dashed: commanded line)', xlabel='x [m]', ylabel='y [m]')
     ax_xy.set_aspect('equal', adjustable='datalim')
-    ax_dev.set(title='deviation from the line', xlabel='t [s]', ylabel='[m]')
+    ax_dev.set(title='distance from the commanded segment', xlabel='t [s]', ylabel='[m]')
     for ax in (ax_q, ax_tau):
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize='small')

@@ -22,7 +22,7 @@ import numpy as np
 
 from arm_bag.cdr import (
     CdrError,
-    Trajectory,
+    JointTrajectoryMsg,
     decode_joint_states_bulk,
     decode_joint_trajectory,
     decode_path,
@@ -71,8 +71,11 @@ class JointStates:
 
 @dataclass
 class TrajectoryMsg:
+    """A trajectory_msgs/JointTrajectory received at ``log_time`` [ns]: the decoded message
+    in ``trajectory``."""
+
     log_time: int
-    trajectory: Trajectory
+    trajectory: JointTrajectoryMsg
 
 
 @dataclass
@@ -180,7 +183,7 @@ class _Scan:
                 elif op == OP_MESSAGE:
                     self.loose.append(pos)
                 else:
-                    self._other(op, data, body, length)
+                    self._other(op, data, body)
             except (struct.error, ValueError, IndexError, UnicodeDecodeError) as exc:
                 self.warnings.append(f'{self.name}: bad record (opcode {op}) at byte {pos}: '
                                      f'{exc}; stopped reading there')
@@ -224,7 +227,7 @@ class _Scan:
         self._decompressed.append(out)
         return _Chunk(1, arena_size, usize)
 
-    def _other(self, op: int, data: bytes, body: int, length: int) -> None:
+    def _other(self, op: int, data: bytes, body: int) -> None:
         if op == OP_SCHEMA:
             sid = _U16.unpack_from(data, body)[0]
             name, p = _read_str(data, body + 2)
@@ -260,7 +263,7 @@ class _Scan:
             if op == OP_MESSAGE and length >= 22:
                 out.setdefault(_U16.unpack_from(raw, pos + 9)[0], []).append(base + pos)
             elif op == OP_SCHEMA or op == OP_CHANNEL:
-                self._other(op, raw, pos + 9, length)
+                self._other(op, raw, pos + 9)
             pos += 9 + length
         return out
 
@@ -364,7 +367,7 @@ def read_bag(path: str | Path) -> BagData:
         bag.warnings += scan.warnings
         bag.truncated |= scan.truncated
         if ROBOT_RECORD in scan.metadata and bag.robot is None:
-            bag.robot = _robot(scan.metadata[ROBOT_RECORD], bag.warnings)
+            bag.robot = _robot(scan.metadata[ROBOT_RECORD])
         for ch, places in scan.locate().items():
             channel = scan.channels.get(ch)
             if channel is None:
@@ -385,7 +388,8 @@ def read_bag(path: str | Path) -> BagData:
     return bag
 
 
-def _robot(values: dict[str, str], warnings: list[str]) -> dict | None:
+def _robot(values: dict[str, str]) -> dict:
+    """The robot record's values, JSON-decoded where they are JSON."""
     out = {}
     for k, v in values.items():
         try:

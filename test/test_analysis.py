@@ -42,9 +42,48 @@ def test_settling_time_and_overshoot_match_hand_values():
     assert metrics.overshoot(q, 1.0, 1.0) is None, 'zero step'
 
 
-def test_line_deviation_energy_and_torque_stats_match_hand_values():
-    dev = metrics.line_deviation([[0.5, 0.003], [2.0, -0.001]], [0, 0], [1, 0])
-    assert dev == pytest.approx([0.003, 0.001])
+# A 3-4-5 segment: from A to B is 5 m along U; N is normal to it. Points are built as
+# A + s U + h N, so their distances follow by hand (exact to rounding: tolerance 1e-12 m).
+SEG_A, SEG_B = np.array([1.0, 1.0]), np.array([4.0, 5.0])
+SEG_U, SEG_N = np.array([0.6, 0.8]), np.array([-0.8, 0.6])
+
+
+def on_seg(s: float, h: float) -> np.ndarray:
+    return SEG_A + s * SEG_U + h * SEG_N
+
+
+def test_segment_deviation_is_perpendicular_alongside_and_to_the_end_point_beyond():
+    xy = [on_seg(2.0, 0.5),    # alongside: 0.5 m across
+          on_seg(8.0, 4.0),    # 3 m past B, 4 m across: 5 m from B (the line: 4 m)
+          on_seg(-0.3, -0.4),  # 0.3 m before A, 0.4 m across: 0.5 m from A
+          on_seg(5.0, 0.0),    # B itself
+          on_seg(0.0, -2.0)]   # 2 m across at A
+    dev = metrics.segment_deviation(xy, SEG_A, SEG_B)
+    assert dev == pytest.approx([0.5, 5.0, 0.5, 0.0, 2.0], abs=1e-12)
+
+
+def test_overshoot_along_line_counts_only_the_distance_beyond_each_end():
+    xy = [on_seg(2.0, 0.5), on_seg(8.0, 4.0), on_seg(-0.3, -0.4), on_seg(5.0, 0.0),
+          on_seg(5.002, -0.001)]  # 2 mm past B, 1 mm across
+    before, past = metrics.overshoot_along_line(xy, SEG_A, SEG_B)
+    assert before == pytest.approx([0.0, 0.0, 0.3, 0.0, 0.0], abs=1e-12)
+    assert past == pytest.approx([0.0, 3.0, 0.0, 0.0, 0.002], abs=1e-12)
+    # the direction matters: the same points on the segment from B to A
+    before, past = metrics.overshoot_along_line(xy, SEG_B, SEG_A)
+    assert before == pytest.approx([0.0, 3.0, 0.0, 0.0, 0.002], abs=1e-12)
+    assert past == pytest.approx([0.0, 0.0, 0.3, 0.0, 0.0], abs=1e-12)
+
+
+def test_a_zero_length_segment_gives_the_distance_to_its_point_and_no_overshoot():
+    xy = [[4.0, 6.0], [1.0, 2.0]]  # 3-4-5 from (1, 2), and the point itself
+    with np.errstate(all='raise'):  # a division by zero would raise here
+        dev = metrics.segment_deviation(xy, [1.0, 2.0], [1.0, 2.0])
+        before, past = metrics.overshoot_along_line(xy, [1.0, 2.0], [1.0, 2.0])
+    assert dev == pytest.approx([5.0, 0.0], abs=1e-12)
+    assert before.tolist() == [0.0, 0.0] and past.tolist() == [0.0, 0.0]
+
+
+def test_straight_line_check_energy_and_torque_stats_match_hand_values():
     t = np.linspace(0, 1, 11)
     tau = np.tile([2.0, -1.0], (11, 1))
     qd = np.tile([3.0, 4.0], (11, 1))
@@ -111,6 +150,9 @@ def test_regulation_and_straight_line_segments_match_hand_values(tmp_path):
     assert reg.energy == pytest.approx(60.0 * 1.0 * 3.0)
     assert line.deviation_max == pytest.approx(expected['deviation_max'], abs=1e-9)
     assert line.deviation_rms == pytest.approx(expected['deviation_rms'], abs=1e-9)
+    assert line.line_overshoot_end == pytest.approx(0.0, abs=1e-9), 'stops at its end'
+    assert line.line_overshoot_start == pytest.approx(0.0, abs=1e-9)
+    assert reg.line_overshoot_end is None and reg.deviation_max is None, 'no line'
     assert line.tracking_rms == pytest.approx([0, 0], abs=1e-12)
     doc = json.loads(json.dumps(rep.to_dict()))
     assert doc['segments'][1]['deviation_max'] == pytest.approx(0.002, abs=1e-9)
@@ -212,7 +254,7 @@ def test_write_error_leaves_a_readable_bag_and_names_the_file(tmp_path):
     w.flush()
     good = w.path.stat().st_size
     w._file.close()
-    w._file = open('/dev/full', 'wb')  # noqa: SIM115  (the writer reopens its own file)
+    w._file = open('/dev/full', 'wb')  # the writer reopens its own file
     write_run(w, ch, 10**9, t, z, z, z, None)
     with pytest.raises(BagWriteError, match='No space left'):
         w.flush_chunk()
@@ -257,6 +299,39 @@ def test_cli_errors_are_one_line_with_a_distinct_exit_code(tmp_path, kind, code)
     assert 'Traceback' not in out.stderr
     errors = [line for line in out.stderr.splitlines() if not line.startswith('warning:')]
     assert kind == 'usage' or len(errors) == 1, out.stderr
+
+
+def test_a_tip_that_runs_past_the_line_end_is_measured_to_the_end_with_its_overshoot(
+        tmp_path):
+    """The tip follows the line, runs 3 mm past its end (1 mm across) and comes back: it is
+    hypot(3, 1) mm from the commanded segment (1 mm from the infinite line) and overshoots
+    the end by 3 mm along the line; in the report, the table and the JSON."""
+    a, b = np.array([1.2, 0.3]), np.array([0.6, 0.9])
+    u = (b - a) / np.hypot(*(b - a))
+    normal = np.array([-u[1], u[0]])
+    line = a + np.linspace(0, 1, 11)[:, None] * (b - a)
+    past = b + np.outer([0.002, 0.003, 0.001, 0.0], u) + np.outer([0.0005, 0.001, 0.0, 0.0],
+                                                                   normal)
+    q = ik(np.vstack([line, past]))
+    n = len(q)
+    path_xy = a + np.linspace(0, 1, 5)[:, None] * (b - a)
+    w, ch = open_bag(tmp_path / 'bag')
+    write_run(w, ch, 1_000_000, np.arange(n) * 0.1, q, np.zeros((n, 2)), np.zeros((n, 2)),
+              q, (ik(path_xy), np.linspace(0, 1, 5)), path_xy, stamp0=10_000_000_000)
+    w.close()
+    seg = analyze(tmp_path / 'bag').segments[0]
+    assert seg.mode == 'straight_line'
+    assert seg.deviation_max == pytest.approx(np.hypot(0.003, 0.001), abs=1e-9)
+    assert seg.line_overshoot_end == pytest.approx(0.003, abs=1e-9)
+    assert seg.line_overshoot_start == pytest.approx(0.0, abs=1e-9)
+    out = run_cli(str(tmp_path / 'bag'))
+    assert out.returncode == 0, out.stderr
+    row = next(r for r in out.stdout.splitlines() if 'past line end [m]' in r)
+    assert float(row.split()[-1]) == pytest.approx(0.003, rel=1e-3), row
+    doc = json.loads(run_cli(str(tmp_path / 'bag'), '--json').stdout)
+    assert doc['segments'][0]['line_overshoot_end'] == pytest.approx(0.003, abs=1e-9)
+    assert doc['segments'][0]['deviation_max'] == pytest.approx(np.hypot(0.003, 0.001),
+                                                                abs=1e-9)
 
 
 def test_a_line_after_a_stop_is_measured_from_where_its_path_starts(tmp_path):
