@@ -1,0 +1,108 @@
+"""package.xml names every run dependency by its rosdep key, and nothing nobody uses.
+
+Walks every ``import`` (``ast``, function-level ones included) of the installed packages
+and the launch files, maps each third-party top-level module to its rosdep key with the one
+table below, and checks the keys against package.xml's ``exec_depend`` (and ``depend``).
+A new import that is not in the table fails, so it forces a decision about its key.
+Standard library modules (``sys.stdlib_module_names``) and the packages' own are skipped.
+The recorder also imports message modules by name at run time (``importlib``) for whatever
+topics it is asked to record; the suite's own topics are all covered here by static imports.
+"""
+
+from __future__ import annotations
+
+import ast
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+#: What setup.py installs as Python packages.
+PACKAGES = ('arm_common', 'arm_dynamics', 'arm_control', 'arm_planner', 'arm_bag', 'arm_sim')
+
+#: Third-party top-level module -> its rosdep key (rosdistro ``rosdep/*.yaml``; a ROS
+#: package's key is its name).
+ROSDEP_KEYS = {
+    # ROS packages (message, client library and launch packages)
+    'rclpy': 'rclpy',
+    'builtin_interfaces': 'builtin_interfaces',
+    'diagnostic_msgs': 'diagnostic_msgs',
+    'geometry_msgs': 'geometry_msgs',
+    'nav_msgs': 'nav_msgs',
+    'rcl_interfaces': 'rcl_interfaces',
+    'rosgraph_msgs': 'rosgraph_msgs',
+    'sensor_msgs': 'sensor_msgs',
+    'std_msgs': 'std_msgs',
+    'std_srvs': 'std_srvs',
+    'trajectory_msgs': 'trajectory_msgs',
+    'ament_index_python': 'ament_index_python',
+    'launch': 'launch',
+    'launch_ros': 'launch_ros',
+    # Python libraries (rosdep/python.yaml)
+    'numpy': 'python3-numpy',
+    'scipy': 'python3-scipy',
+    'yaml': 'python3-yaml',
+    'matplotlib': 'python3-matplotlib',  # arm_bag.plot: arm-sim analyze --plot, the demo
+    'zstandard': 'python3-zstandard',  # arm_bag.reader/writer: zstd-compressed MCAP chunks
+    'lz4': 'python3-lz4',  # arm_bag.reader/writer: lz4-compressed MCAP chunks
+}
+
+#: exec_depends no module imports, with the reason they are there anyway.
+NOT_IMPORTED: dict[str, str] = {}
+
+
+def sources() -> list[Path]:
+    files = [p for pkg in PACKAGES for p in sorted((ROOT / pkg).glob('**/*.py'))]
+    return files + sorted((ROOT / 'launch').glob('*.py'))
+
+
+def third_party_imports() -> dict[str, set[str]]:
+    """Top-level third-party module -> the files (relative) importing it."""
+    found: dict[str, set[str]] = {}
+    for path in sources():
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+                names = [node.module]
+            else:
+                continue
+            for name in names:
+                top = name.split('.')[0]
+                if top in sys.stdlib_module_names or top in PACKAGES or top == '__future__':
+                    continue
+                found.setdefault(top, set()).add(str(path.relative_to(ROOT)))
+    return found
+
+
+def exec_depends() -> set[str]:
+    root = ET.parse(ROOT / 'package.xml').getroot()
+    return {e.text.strip() for e in root if e.tag in ('exec_depend', 'depend') and e.text}
+
+
+def test_every_package_is_walked():
+    found = {p.parent.name for p in ROOT.glob('*/__init__.py')}
+    assert found == set(PACKAGES), f'packages not walked (add them to PACKAGES): {found}'
+
+
+def test_every_third_party_import_has_its_rosdep_key_in_package_xml():
+    imports = third_party_imports()
+    unmapped = {m: sorted(files) for m, files in imports.items() if m not in ROSDEP_KEYS}
+    assert not unmapped, (f'imports without a rosdep key in ROSDEP_KEYS (decide their key, '
+                          f'add it here and to package.xml): {unmapped}')
+    declared = exec_depends()
+    missing = {ROSDEP_KEYS[m]: sorted(files) for m, files in imports.items()
+               if ROSDEP_KEYS[m] not in declared}
+    assert not missing, f'package.xml lacks <exec_depend> for: {missing}'
+
+
+def test_every_exec_depend_is_imported_or_justified():
+    used = {ROSDEP_KEYS[m] for m in third_party_imports() if m in ROSDEP_KEYS}
+    unused = exec_depends() - used - set(NOT_IMPORTED)
+    assert not unused, (f'package.xml exec_depends nothing imports (drop them, or say why '
+                        f'in NOT_IMPORTED): {sorted(unused)}')
+
+
+def test_the_table_holds_no_stale_entries():
+    stale = set(ROSDEP_KEYS) - set(third_party_imports())
+    assert not stale, f'ROSDEP_KEYS entries nothing imports any more: {sorted(stale)}'
