@@ -51,7 +51,8 @@ with use_sim_time:=true. Analysis uses the messages' header stamps, never the lo
 Topics that appear later are picked up (graph polled every 0.5 s). SIGINT/SIGTERM close the
 bag (exit 0); a SIGKILL loses at most the last flush_period of messages. The robot
 parameters are stored in the MCAP metadata record arm_sim_robot. Reports received,
-written and dropped message counts on /diagnostics.
+written and dropped message counts on /diagnostics (status "recorder: summary"; lost
+messages and skipped topics as "recorder: dropped" and "recorder: skipped_topic").
 '''
 DEFAULT_TOPICS = ['joint_states', 'effort_controller/commands', 'arm_controller/reference',
                   'arm_controller/joint_trajectory', 'goal_pose', 'planner/path',
@@ -218,7 +219,8 @@ class RecorderNode(Node):
     def _lost(self, info) -> None:
         n = int(getattr(info, 'total_count_change', 1))
         self.dropped += n
-        self.diag.problem('dropped', f'{n} messages lost before reaching the recorder')
+        self.diag.problem('dropped', f'{n} messages lost before reaching the recorder',
+                          lost=n, dropped=self.dropped)
 
     def flush(self) -> None:
         if self.stopped:

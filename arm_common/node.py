@@ -28,6 +28,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
 from arm_common.params import ParamSpec, command_line_parameters
@@ -60,6 +61,17 @@ def steady_clock() -> Clock:
     return Clock(clock_type=ClockType.STEADY_TIME)
 
 
+def latched_qos() -> QoSProfile:
+    """QoS of a state-like topic, published once per change (a plan's path, the verdict on
+    the latest trajectory): reliable, transient local, keep last 1, as robot_state_publisher
+    publishes ``robot_description``. A subscriber that asks for transient local (RViz with
+    Durability "Transient Local", ``ros2 topic echo``, the recorder) gets the last message
+    even if it came up later; a volatile one matches too and gets the new ones."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
 def declare_parameters(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]:
     """Declare ``specs`` on ``node`` and return their values; raise :class:`ConfigError`
     listing every refused value.
@@ -73,7 +85,7 @@ def declare_parameters(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]
     specs = tuple(specs)
     # rclpy keeps the start-up values (params files, then -p) in this dict and reads it in
     # declare_parameter; it is what the public ``parameter_overrides`` argument extends.
-    overrides: dict[str, Parameter] = node._parameter_overrides  # noqa: SLF001
+    overrides: dict[str, Parameter] = node._parameter_overrides  # private: see above
     from_command_line = command_line_parameters(_user_args, node.get_name(),
                                                 node.get_fully_qualified_name())
     for spec in specs:
@@ -175,32 +187,88 @@ def set_parameters_request(values: dict[str, Any]) -> SetParameters.Request:
         ParameterMsg(name=k, value=parameter_value(v)) for k, v in values.items()])
 
 
-class Diagnostics:
-    """One DiagnosticStatus for a node on ``/diagnostics``: a summary published every
-    second, and rejected input, faults and notable events at once (problems throttled per
-    kind, every occurrence counted).
+#: The task of a node's own state in its /diagnostics (its other tasks are problem and
+#: event kinds).
+SUMMARY_TASK = 'summary'
 
-    Every status is stamped with the wall clock (system time), whatever ``use_sim_time``
+
+def status_name(node_fqn: str, task: str) -> str:
+    """The /diagnostics status name of ``task`` of the node ``node_fqn`` (its fully
+    qualified name): ``<node>: <task>`` as diagnostic_updater names statuses
+    (``get_name() + ": " + task``), the node written as its fully qualified name without
+    the leading slash, so ``simulator: summary`` in the root namespace (exactly
+    diagnostic_updater's name) and ``arm2/simulator: summary`` in ``/arm2``: two arms in
+    one ROS graph never publish the same status name."""
+    return f"{node_fqn.lstrip('/')}: {task}"
+
+
+def parse_status_name(name: str) -> tuple[str, str] | None:
+    """(node's fully qualified name, task) of a status named by :func:`status_name`, e.g.
+    ``('/arm2/simulator', 'summary')``; None for a name without ``': '``."""
+    node, sep, task = name.partition(': ')
+    if not sep or not node or not task:
+        return None
+    return '/' + node, task
+
+
+class _Task:
+    """A problem or event kind of a node: its last occurrence and how often it happened."""
+
+    def __init__(self) -> None:
+        self.level, self.message = 'OK', ''
+        self.values: dict[str, Any] = {}  # of the last occurrence, sim_time first
+        self.count = 0
+        self.fresh = False  # occurred since the last periodic report
+
+
+class Diagnostics:
+    """A node's ``/diagnostics`` as diagnostic_updater publishes them: one
+    DiagnosticStatus per task, named ``<node>: <task>`` (:func:`status_name`: the node's
+    name, with its namespace if it has one, e.g. ``simulator: summary``,
+    ``arm2/controller: time_jump``), hardware_id ``arm_sim``, the figures as key-values,
+    and every status of the node in one DiagnosticArray every ``period`` s (wall clock).
+
+    Tasks:
+
+    * ``summary``: the node's state, as :meth:`set` last gave it (level, message, figures).
+      Problems and events never change it.
+    * one task per kind of problem (:meth:`problem`: rejected input, a fault, something
+      late) and per kind of event (:meth:`event`, level OK: e.g. ``trajectory_accepted``),
+      there from its first occurrence on. An occurrence is reported at once, alone in its
+      own array, with the key ``event`` = the kind (a problem is logged and reported at
+      most once per ``period`` per kind; every occurrence is counted). The periodic array
+      repeats it without ``event``: at the occurrence's level and message while the kind
+      occurred since the previous periodic report, then decayed to OK (message ``none since
+      the last report (N in total); last: ...``, key ``last_level``). So a problem that
+      goes on stays WARN/ERROR, one that stopped reads OK with its count, and a monitor
+      that missed the immediate report still sees it. Counting reports that carry
+      ``event`` counts what was reported at once; the key ``count`` is every occurrence.
+
+    Every array is stamped with the wall clock (system time), whatever ``use_sim_time``
     says: diagnostics report *when* something happened to the person or tool watching.
-    The simulated time it happened at is the key ``sim_time`` [s] (from ``sim_time()``,
-    when it returns a value). Immediate reports carry the key ``event`` = their kind, and
-    any further key-values given, so tools read them without parsing the message.
+    The simulated time is the key ``sim_time`` [s] (from ``sim_time()``, when it returns a
+    value): in the summary the time of the report, in a kind's status the time of its
+    last occurrence, whose further key-values it carries too.
     """
 
     def __init__(self, node: Node, period: float = 1.0,
                  sim_time: Callable[[], float | None] | None = None) -> None:
         self.node = node
         self.pub = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self.name = node.get_fully_qualified_name()
+        self.node_fqn = node.get_fully_qualified_name()
         self.level = 'OK'
         self.message = 'starting'
         self.values: dict[str, Any] = {}
-        self.counts: dict[str, int] = {}
-        self.last_problem: dict[str, str] = {}
+        self.tasks: dict[str, _Task] = {}
         self.throttle = Throttle(period)
         self.sim_time = sim_time
         self.wall = Clock(clock_type=ClockType.SYSTEM_TIME)
         node.create_timer(period, self.publish, clock=steady_clock())
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """How often each problem or event kind occurred."""
+        return {kind: task.count for kind, task in self.tasks.items()}
 
     def set(self, level: str, message: str, **values: Any) -> None:
         """Set the summary (published with the next periodic report)."""
@@ -208,10 +276,9 @@ class Diagnostics:
         self.values.update(values)
 
     def problem(self, kind: str, reason: str, level: str = 'WARN', **values: Any) -> None:
-        """Report rejected input or a fault now: log + /diagnostics, at most once a second
-        per ``kind``; every occurrence is counted."""
-        self.counts[kind] = self.counts.get(kind, 0) + 1
-        self.last_problem[kind] = reason
+        """Report rejected input or a fault now: log + /diagnostics (task ``kind``), at most
+        once a period per ``kind``; every occurrence is counted."""
+        task = self._occurred(kind, level, reason, values)
         if self.throttle.ready(kind):
             held = self.throttle.take_suppressed(kind)
             more = f' ({held} more since last report)' if held else ''
@@ -221,24 +288,55 @@ class Diagnostics:
                 log.error(f'{reason}{more}')
             else:
                 log.warning(f'{reason}{more}')
-            self.publish(extra=(level, f'{kind}: {reason}', {'event': kind, **values}))
+            self._send([self._task_status(kind, task, event=True)])
 
     def event(self, kind: str, message: str, **values: Any) -> None:
-        """Publish a notable event now (level OK, counted), e.g. an accepted trajectory."""
-        self.counts[kind] = self.counts.get(kind, 0) + 1
-        self.publish(extra=('OK', f'{kind}: {message}', {'event': kind, **values}))
+        """Publish a notable event now (task ``kind``, level OK, counted), e.g. an accepted
+        trajectory."""
+        task = self._occurred(kind, 'OK', message, values)
+        self._send([self._task_status(kind, task, event=True)])
 
-    def publish(self, extra: tuple[str, str, dict[str, Any]] | None = None) -> None:
-        level, message, own = extra or (self.level, self.message, {})
+    def publish(self) -> None:
+        """The periodic report: the summary and every kind's status in one array."""
+        statuses = [self._status(SUMMARY_TASK, self.level, self.message,
+                                 {**self._sim_time(), **self.values})]
+        for kind, task in self.tasks.items():
+            statuses.append(self._task_status(kind, task))
+            task.fresh = False
+        self._send(statuses)
+
+    def _sim_time(self) -> dict[str, str]:
         sim = self.sim_time() if self.sim_time else None
-        values = {**({} if sim is None else {'sim_time': f'{sim:.9f}'}), **self.values,
-                  **own}
-        kv = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        kv += [KeyValue(key=f'{k}_count', value=str(v)) for k, v in self.counts.items()]
-        kv += [KeyValue(key=f'{k}_last', value=v) for k, v in self.last_problem.items()]
-        status = DiagnosticStatus(level=LEVELS[level], name=self.name, message=message,
-                                  hardware_id='arm_sim', values=kv)
-        msg = DiagnosticArray(status=[status])
+        return {} if sim is None else {'sim_time': f'{sim:.9f}'}
+
+    def _occurred(self, kind: str, level: str, message: str,
+                  values: dict[str, Any]) -> _Task:
+        task = self.tasks.setdefault(kind, _Task())
+        task.count += 1
+        task.level, task.message = level, message
+        task.values = {**self._sim_time(), **values}
+        task.fresh = True
+        return task
+
+    def _task_status(self, kind: str, task: _Task, event: bool = False) -> DiagnosticStatus:
+        head: dict[str, Any] = {'event': kind} if event else {}
+        level, message = task.level, task.message
+        if not event and not task.fresh and level != 'OK':
+            head['last_level'] = level
+            level, message = 'OK', (f'none since the last report ({task.count} in total); '
+                                    f'last: {message}')
+        return self._status(kind, level, message, {**head, 'count': task.count,
+                                                    **task.values})
+
+    def _status(self, task: str, level: str, message: str,
+                values: dict[str, Any]) -> DiagnosticStatus:
+        return DiagnosticStatus(level=LEVELS[level], name=status_name(self.node_fqn, task),
+                                message=message, hardware_id='arm_sim',
+                                values=[KeyValue(key=k, value=str(v))
+                                        for k, v in values.items()])
+
+    def _send(self, statuses: list[DiagnosticStatus]) -> None:
+        msg = DiagnosticArray(status=statuses)
         msg.header.stamp = self.wall.now().to_msg()
         self.pub.publish(msg)
 

@@ -24,6 +24,7 @@ from arm_common.node import (
     Diagnostics,
     clock_in_namespace,
     declare_parameters,
+    latched_qos,
     on_parameter_changes,
     run_node,
     steady_clock,
@@ -45,11 +46,13 @@ quintic/cubic/linear by what the points carry; header.stamp = start time, zero =
 arrival). Publishes effort_controller/commands (std_msgs/Float64MultiArray, N m) and
 arm_controller/reference (JointState: desired position and velocity, commanded effort,
 stamped like the state it answers) and arm_controller/trajectory_status
-(diagnostic_msgs/DiagnosticStatus: OK "accepted" or WARN "refused: <reason>" for each
+(diagnostic_msgs/DiagnosticStatus, transient local, depth 1: a late subscriber asking for
+transient local gets the latest; OK "accepted" or WARN "refused: <reason>" for each
 trajectory received, WARN "dropped: <reason>" when a time jump cuts the one in progress, with
 keys at_ns and q = the state it holds from then on; key stamp_ns = its header stamp).
 Until the first trajectory it holds the first measured position. Laws: pd, pd_gravity,
-computed_torque, pid. Reports on /diagnostics.
+computed_torque, pid. Reports on /diagnostics (statuses "controller: summary" and one per
+problem or event kind, e.g. "controller: trajectory_accepted").
 
 A trajectory that arrives before the first joint state waits for it (refused after 5 s of
 wall time without one: a new process may take a second to be matched with the
@@ -131,8 +134,12 @@ class ControllerNode(Node):
         self.cmd_pub = self.create_publisher(Float64MultiArray, 'effort_controller/commands',
                                              10)
         self.ref_pub = self.create_publisher(JointState, 'arm_controller/reference', 10)
+        # Latched: what became of the latest trajectory is the controller's state (what it
+        # executes, or why not) for whoever looks later; each sender reads its own verdict
+        # as it comes (one per trajectory received, seconds apart).
         self.status_pub = self.create_publisher(DiagnosticStatus,
-                                                'arm_controller/trajectory_status', 10)
+                                                'arm_controller/trajectory_status',
+                                                latched_qos())
         self.create_subscription(JointState, 'joint_states', self._on_state, 10)
         self.create_subscription(JointTrajectory, 'arm_controller/joint_trajectory',
                                  self._on_trajectory, 10)
@@ -210,7 +217,7 @@ class ControllerNode(Node):
                 if answer[3] and self.linked:  # lost on the way
                     self.diag.problem('answer_resent', f'the state at t={self.latest[0]:.3f}'
                                       ' s came again (the simulator got no answer to it): '
-                                      'the same command re-sent')
+                                      'the same command re-sent', resent_answers=self.resent)
                 return
             self._control(stamp_ns)
 
@@ -273,7 +280,7 @@ class ControllerNode(Node):
         step = core.update(t, q, qd)
         if step.jump:
             self.diag.problem('time_jump', f'{step.jump}: trajectory dropped, holding the '
-                              f'measured position {q.round(4).tolist()} rad')
+                              f'measured position {q.round(4).tolist()} rad', q=q.tolist())
             if moving:  # a motion in progress: tell its sender, who may plan it again
                 dropped, self.active_msg = self.active_msg, None
                 self._status(dropped, DiagnosticStatus.WARN, f'dropped: {step.jump}', None,
@@ -296,9 +303,10 @@ class ControllerNode(Node):
         self.ref_pub.publish(ref)
         if cmd.saturated.any():
             self.saturations += 1
+            joints = [j for j, s in zip(self.core.joint_names, cmd.saturated) if s]
             self.diag.problem('saturation', f'torque saturated at the effort limits on '
-                              f'{[j for j, s in zip(self.core.joint_names, cmd.saturated) if s]}'
-                              f' (wanted {cmd.raw.round(2).tolist()} N m)', 'WARN')
+                              f'{joints} (wanted {cmd.raw.round(2).tolist()} N m)', 'WARN',
+                              joints=joints, wanted=cmd.raw.tolist())
 
     def _watch(self) -> None:
         now = time.monotonic()
@@ -311,7 +319,7 @@ class ControllerNode(Node):
                 and not self.stale and age > self.params['state_timeout']):
             self.stale = True
             self.diag.problem('stale_state', f'no joint state for {age:.2f} s: stopped '
-                              'commanding until fresh states arrive')
+                              'commanding until fresh states arrive', age_wall=f'{age:.3f}')
         level = 'WARN' if self.stale or self.latest is None else 'OK'
         message = ('waiting for joint states' if self.latest is None else
                    'joint states stale' if self.stale else

@@ -45,7 +45,8 @@ Simulates the 2-R arm (or the geared single link) and publishes joint_states
 (sensor_msgs/JointState: position rad, velocity rad/s, applied effort N m, stamped in
 simulated time) and clock (rosgraph_msgs/Clock); takes effort_controller/commands
 (std_msgs/Float64MultiArray, N m per joint, saturated at effort_limits). Service ~/reset
-(std_srvs/Trigger) restores the initial state. Reports on /diagnostics.
+(std_srvs/Trigger) restores the initial state. Reports on /diagnostics (statuses
+"simulator: summary" and one per problem or event kind, e.g. "simulator: overrun").
 
 timing_mode: real_time (simulated time follows the wall clock times real_time_factor; the
 initial state is held until the first command) or lockstep (one control period,
@@ -273,12 +274,13 @@ class SimulatorNode(Node):
         core.advance()
         if core.diverged and not was_diverged:
             kind = 'runaway' if core.diverged.startswith('runaway') else 'diverged'
-            self.diag.problem(kind, core.diverged, 'ERROR')
+            self.diag.problem(kind, core.diverged, 'ERROR', q=core.q.tolist(),
+                              qd=core.qd.tolist())
         elif not core.diverged:
             outside = core.outside_limits
             if outside:
                 self.diag.problem('outside_limits', f'state outside the joint limits: '
-                                  f'{outside}')
+                                  f'{outside}', q=core.q.tolist(), qd=core.qd.tolist())
         self.publish_state(new_state=True)
 
     def _on_rt_tick(self) -> None:
@@ -362,7 +364,8 @@ class SimulatorNode(Node):
             self.core.clear_command()
             self.diag.problem('command_timeout', f"no valid effort command for "
                               f"{self.params['command_timeout']:g} s (wall): torque set to "
-                              'zero until commands return (real_time watchdog)')
+                              'zero until commands return (real_time watchdog)',
+                              command_timeout=f"{self.params['command_timeout']:g}")
         if k.heartbeat_due(sim, now):
             self.publish_state()
         win = k.window(sim, now)

@@ -29,6 +29,7 @@ from arm_common.node import (
     Diagnostics,
     clock_in_namespace,
     declare_parameters,
+    latched_qos,
     on_parameter_changes,
     run_node,
     steady_clock,
@@ -58,7 +59,8 @@ arm_controller/joint_trajectory (trajectory_msgs/JointTrajectory, positions rad,
 velocities rad/s, accelerations rad/s^2; header.stamp = the simulated time of the joint
 state it was planned from, where the motion starts) and
 planner/path (nav_msgs/Path of the end effector, frame base_frame, stamped like the
-trajectory).
+trajectory; transient local, depth 1: a display started later, e.g. RViz with durability
+Transient Local, still gets the current plan's path).
 
 mode regulation: the goal's joint angles as a set point, or a synchronized joint-space
 profile (regulation_profile). mode straight_line: the end effector moves on the segment
@@ -66,7 +68,8 @@ from where it is to the goal. The predicted joint torques (inverse dynamics of t
 parameters) are checked against effort_limits: too fast a plan is slowed down to the
 fastest duration that fits (feasibility stretch) or refused (feasibility refuse).
 Unreachable or near-singular goals, goals in another frame, non-finite goals and goals
-before any joint state are refused on /diagnostics; nothing is published for them. When
+before any joint state are refused on /diagnostics (one status per kind, e.g. "planner:
+goal_refused"); nothing is published for them. When
 simulated time goes back or jumps during a planned motion (a restarted simulator, a reset),
 the controller drops the motion, says so on arm_controller/trajectory_status with the state
 it now holds, and the planner plans the goal again from that state (event replanned). A
@@ -196,7 +199,8 @@ class PlannerNode(Node):
         self.plans = 0
         self.traj_pub = self.create_publisher(JointTrajectory,
                                               'arm_controller/joint_trajectory', 10)
-        self.path_pub = self.create_publisher(Path, 'planner/path', 10)
+        # Latched: the current plan's path, for a display (RViz) that comes up later.
+        self.path_pub = self.create_publisher(Path, 'planner/path', latched_qos())
         self.create_subscription(JointState, 'joint_states', self._on_joint_state, 10)
         self.create_subscription(PoseStamped, 'goal_pose', self._on_goal, 10)
         self.create_subscription(DiagnosticStatus, 'arm_controller/trajectory_status',
@@ -257,14 +261,14 @@ class PlannerNode(Node):
                 self.diag.set('OK', 'ready: waiting for goal_pose')
             self.q, self.qd = q, qd
             self.t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        except Exception as exc:  # noqa: BLE001 -- never die on a message
+        except Exception as exc:  # never die on a message
             self.diag.problem('internal_error', f'joint_states handling failed: {exc!r}',
                               'ERROR')
 
     def _on_goal(self, msg: PoseStamped) -> None:
         try:
             self._handle_goal(msg)
-        except Exception as exc:  # noqa: BLE001 -- never die on a message
+        except Exception as exc:  # never die on a message
             self.diag.problem('internal_error', f'planning failed unexpectedly: {exc!r}',
                               'ERROR')
 
@@ -278,7 +282,7 @@ class PlannerNode(Node):
         goal = np.array([msg.pose.position.x, msg.pose.position.y], dtype=float)
         if not np.isfinite(goal).all():
             self.diag.problem('goal_not_finite', f'goal_pose refused: non-finite position '
-                              f'(x, y) = {goal.tolist()}')
+                              f'(x, y) = {goal.tolist()}', goal_x=goal[0], goal_y=goal[1])
             return
         if self.q is None:
             self.diag.problem('goal_before_state', 'goal_pose refused: no joint_states received '
@@ -299,7 +303,8 @@ class PlannerNode(Node):
             plan = plan_goal(self.arm, self.limits, q, np.array(goal),
                              settings_from(self.params), self.joint_limits, qd_current=qd)
         except (PlanningError, ValueError) as exc:
-            self.diag.problem('goal_refused', f'goal_pose refused: {exc}')
+            self.diag.problem('goal_refused', f'goal_pose refused: {exc}', goal_x=goal[0],
+                              goal_y=goal[1])
             return
         self.pending = (plan, time.monotonic() + CONTROLLER_WAIT, t_ns, goal, sends)
         self._send_pending()

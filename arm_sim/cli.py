@@ -151,7 +151,7 @@ def cmd_goal(args: argparse.Namespace) -> int:
             for e in client.events[n_events:]:
                 if ((e.node == 'planner' and e.kind.startswith('goal_'))
                         or (e.node == 'controller' and e.kind == 'rejected_trajectory')):
-                    return e.message.split(': ', 1)[-1].removeprefix('goal_pose refused: ')
+                    return e.message.removeprefix('goal_pose refused: ')
             return None
 
         try:

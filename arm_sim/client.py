@@ -18,13 +18,13 @@ from rcl_interfaces.srv import SetParameters
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
-from arm_common.node import set_parameters_request
+from arm_common.node import SUMMARY_TASK, parse_status_name, set_parameters_request
 
 
 @dataclass(frozen=True)
 class Event:
-    """An immediate /diagnostics report of a suite node: its kind (key ``event``),
-    level (0 OK, 1 WARN, 2 ERROR), message and key-values."""
+    """An immediate /diagnostics report of a suite node: its kind (key ``event``, also the
+    status's task), level (0 OK, 1 WARN, 2 ERROR), message and key-values."""
 
     node: str
     kind: str
@@ -56,9 +56,11 @@ class SuiteClient:
         self.states: list[JointState] = []
         self.trajectories: list[JointTrajectory] = []
         self.reference_time = -math.inf  # stamp of the controller's latest answer [s]
-        self.diagnostics: list[tuple[str, int, str]] = []  # (node, level, message)
-        self.diagnostic_values: list[tuple[str, dict[str, str]]] = []  # (node, key: value)
+        # The suite's /diagnostics (statuses '<ns>/<node>: <task>', arm_common.node.Diagnostics):
+        self.diagnostics: list[tuple[str, int, str]] = []  # summaries: (node, level, message)
+        self.diagnostic_values: list[tuple[str, dict[str, str]]] = []  # summaries: (node, k: v)
         self.events: list[Event] = []  # immediate reports (those with an 'event' key)
+        self.counts: dict[tuple[str, str], int] = {}  # (node, kind): occurrences reported
         n = self.node
         n.create_subscription(JointState, 'joint_states', self._keep_state, 1000)
         n.create_subscription(JointTrajectory, 'arm_controller/joint_trajectory',
@@ -79,14 +81,24 @@ class SuiteClient:
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
         for s in msg.status:
-            if s.name.startswith(self.ns + '/') and s.name.count('/') == self.ns.count('/') + 1:
-                node = s.name.rsplit('/', 1)[1]
-                level = s.level if isinstance(s.level, int) else s.level[0]
-                values = {kv.key: kv.value for kv in s.values}
+            parsed = parse_status_name(s.name)
+            if parsed is None:
+                continue
+            ns, _, node = parsed[0].rpartition('/')
+            if ns != self.ns:
+                continue
+            task = parsed[1]
+            level = s.level if isinstance(s.level, int) else s.level[0]
+            values = {kv.key: kv.value for kv in s.values}
+            if task == SUMMARY_TASK:
                 self.diagnostics.append((node, level, s.message))
                 self.diagnostic_values.append((node, values))
-                if 'event' in values:
-                    self.events.append(Event(node, values['event'], level, s.message, values))
+                continue
+            if values.get('count', '').isdigit():
+                key = (node, task)
+                self.counts[key] = max(self.counts.get(key, 0), int(values['count']))
+            if 'event' in values:
+                self.events.append(Event(node, values['event'], level, s.message, values))
 
     def events_of(self, node: str, *kinds: str, since: int = 0) -> list[Event]:
         """Immediate reports of ``node`` (of these ``kinds``, if given) from index
@@ -95,8 +107,13 @@ class SuiteClient:
                 if e.node == node and (not kinds or e.kind in kinds)]
 
     def latest_values(self, node: str) -> dict[str, str]:
-        """The key-values of ``node``'s latest report (empty if none came)."""
+        """The key-values of ``node``'s latest summary (empty if none came)."""
         return next((v for n, v in reversed(self.diagnostic_values) if n == node), {})
+
+    def count(self, node: str, kind: str) -> int:
+        """How often ``node`` reported the problem or event ``kind`` happened (its
+        status's ``count``; 0 if it never did)."""
+        return self.counts.get((node, kind), 0)
 
     def node_name(self, name: str) -> str:
         return f'{self.ns}/{name}'

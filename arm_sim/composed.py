@@ -1,7 +1,8 @@
 """``composed``: the simulator and the controller in one process, spun by one executor.
 
 The same two nodes as ``simulator`` and ``controller`` (same parameters, topics, services and
-/diagnostics; each reads its own section of a params file), composed the way ros2_control
+/diagnostics: statuses ``simulator: <task>`` and ``controller: <task>``, each node its own; each
+reads its own section of a params file), composed the way ros2_control
 runs a controller in the hardware's update loop: a state goes to the controller and its
 command comes back without leaving the process or waking another one. Measured in
 ``bench/bench_loop.py`` side by side with the two processes, this is what holds real time at

@@ -276,10 +276,8 @@ def suite_warnings(c: SuiteClient) -> list[str]:
             entry[1] = e.message
     lines = []
     for (node, kind), (reports, message) in seen.items():
-        counts = [int(v.get(f'{kind}_count', 0)) for n, v in c.diagnostic_values if n == node]
-        total = max(counts + [reports])
-        lines.append(f'{node} reported {kind} {total} time(s); last: '
-                     f"{message.removeprefix(kind + ': ')}")
+        total = max(c.count(node, kind), reports)  # occurrences (some reported late or held)
+        lines.append(f'{node} reported {kind} {total} time(s); last: {message}')
     return lines
 
 
@@ -292,18 +290,21 @@ def summary_table(results: list[TaskResult], segments: list[dict],
                   effort_limits: list[float]) -> str:
     """One row per task: the lecture's questions (how much torque, how much deviation, how
     long to settle, does it stay) answered from the analysed bag segments."""
-    head = ('task', 'motion s', 'peak |tau| N m', 'line dev. mm', 'settle s', 'tip err mm')
+    head = ('task', 'motion s', 'peak |tau| N m', 'line dev. mm', 'past end mm', 'settle s',
+            'tip err mm')
     rows = []
     if len(results) != len(segments):
         rows.append((f'(the bag has {len(segments)} segments for {len(results)} tasks: '
-                     'rows may not match)', '', '', '', '', ''))
+                     'rows may not match)', *[''] * (len(head) - 1)))
     for res, seg in zip(results, segments):
         peak = seg.get('torque_peak') or [float('nan')] * 2
         dev = seg.get('deviation_max')
+        past = seg.get('line_overshoot_end')
         settle = seg.get('settling_time_overall')
         rows.append((res.task.label, f'{res.motion:.2f}',
                      ' / '.join(f'{p:.1f}' for p in peak),
                      '-' if dev is None else f'{dev * 1e3:.2f}',
+                     '-' if past is None else f'{past * 1e3:.2f}',
                      '-' if settle is None else f'{settle:.2f}',
                      f'{res.tip_error * 1e3:.2f}'))
     widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
@@ -311,5 +312,6 @@ def summary_table(results: list[TaskResult], segments: list[dict],
     lines = [fmt.format(*head), '  '.join('-' * w for w in widths)]
     lines += [fmt.format(*r) for r in rows]
     lines.append(f'(effort limits {effort_limits[0]:g} / {effort_limits[1]:g} N m; line '
-                 'deviation = largest distance of the tip from the commanded line)')
+                 'dev. = largest distance of the tip from the commanded segment; past end = '
+                 'how far the tip went beyond its end, along the line)')
     return '\n'.join(lines)

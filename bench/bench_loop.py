@@ -209,7 +209,7 @@ class Observer:
 
     def _on_diag(self, msg) -> None:
         for status in msg.status:
-            if status.name == '/simulator':
+            if status.name == 'simulator: summary':  # arm_common.node.status_name
                 values = {kv.key: kv.value for kv in status.values}
                 values['message'] = status.message
                 self.diag.append((time.monotonic(), values))
@@ -341,7 +341,7 @@ def run_one(obs: Observer, loop: Loop, duration: float, warmup: float) -> Result
             return res
         values = sim_values(obs, t0)
         last = values[-1] if values else {}
-        res.overruns = last.get('overrun_count', '0')
+        res.overruns = last.get('overruns', '0')
         if loop.mode == 'lockstep':
             lockstep_figures(res, values)
         else:

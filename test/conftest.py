@@ -113,6 +113,37 @@ def leaves_nothing_behind():
     assert not kept, f'/dev/shm files still held by processes of this session: {sorted(kept)}'
 
 
+def statuses(diags: list, node: str, task: str | None = None) -> list:
+    """The DiagnosticStatus entries ``node`` published (``'/simulator'``, ``'planner'`` or
+    ``'/arm2/planner'``), of ``task`` only if given (``'summary'``, or a problem or event
+    kind such as ``'time_jump'``), in the order received, from the DiagnosticArrays
+    ``diags``. Statuses are named ``<node>: <task>`` (arm_common.node.status_name)."""
+    from arm_common.node import status_name
+
+    fqn = node if node.startswith('/') else '/' + node
+    if task is not None:
+        name = status_name(fqn, task)
+        return [s for d in diags for s in d.status if s.name == name]
+    prefix = status_name(fqn, '')
+    return [s for d in diags for s in d.status if s.name.startswith(prefix)]
+
+
+def values(status) -> dict[str, str]:
+    """A DiagnosticStatus's key-values as a dict."""
+    return {kv.key: kv.value for kv in status.values}
+
+
+def events(diags: list, node: str, kind: str) -> list:
+    """The immediate reports (key ``event``) of ``kind`` by ``node``."""
+    return [s for s in statuses(diags, node, kind) if values(s).get('event') == kind]
+
+
+def count(diags: list, node: str, kind: str) -> int:
+    """How often ``node`` reported ``kind`` happened, as far as ``diags`` tell (the largest
+    ``count`` of its task's statuses, immediate or periodic; 0 if none came)."""
+    return max((int(values(s)['count']) for s in statuses(diags, node, kind)), default=0)
+
+
 class NewRun:
     """The joint states of a simulator restarted after ``states`` held ``k`` messages: from
     the first step back in simulated time on."""
@@ -225,8 +256,8 @@ class Ros:
         n = len(diags)
 
         def reported():
-            return [kv.value for d in diags[n:] for s in d.status if s.name == node
-                    for kv in s.values if kv.key == 'paused_at' and kv.value]
+            return [v['paused_at'] for s in statuses(diags[n:], node, 'summary')
+                    for v in [values(s)] if v.get('paused_at')]
 
         assert self.set_params(node, pause_at=0.0)[0].successful
         self.wait_for(reported, what=f'{node} to report where it paused')

@@ -8,11 +8,12 @@ import signal
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Duration, Time
-from conftest import NewRun
+from conftest import NewRun, count, statuses
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from arm_common.node import latched_qos
 from arm_control.core import ControllerCore
 from arm_control.laws import ControlLaw, Gains
 from arm_control.trajectory import Trajectory, TrajectoryPoint, validate_trajectory
@@ -47,11 +48,10 @@ def trajectory(points, start: float = 0.0, names=JOINTS) -> JointTrajectory:
 
 
 def problems(diags: list, node: str, kind: str) -> list[str]:
-    """Reports of ``kind`` from ``node``: the immediate report (message ``kind: ...``) or
-    the count in the periodic summary (key ``<kind>_count``), whichever arrives first --
-    the immediate one is missed if /diagnostics was not matched yet."""
-    return [s.message for d in diags for s in d.status if s.name == node and (
-        s.message.startswith(kind) or any(kv.key == f'{kind}_count' for kv in s.values))]
+    """Messages of ``node``'s status of ``kind`` (task ``<node>: <kind>``): the immediate
+    report or the periodic one, whichever arrives first -- the immediate one is missed if
+    /diagnostics was not matched yet."""
+    return [s.message for s in statuses(diags, node, kind)]
 
 
 @pytest.fixture
@@ -135,6 +135,11 @@ def test_a_set_point_is_reached(ros, suite):
     run_until(ros, states, t0 + 4.0)
     err = np.abs(np.array(states[-1].position) - goal).max()
     assert err < 1e-4, f'set point error after 4 s: {err:.2e} rad (bound 1e-4)'
+    # The verdict is latched (transient local, depth 1): a subscriber that comes later and
+    # asks for transient local still gets it.
+    late = ros.collect(DiagnosticStatus, 'arm_controller/trajectory_status', qos=latched_qos())
+    ros.wait_for(lambda: late, what='the latched trajectory status')
+    assert late[0].message.startswith('accepted: '), late[0].message
 
 
 def test_a_multi_point_trajectory_is_tracked_within_the_derived_bound(ros, suite):
@@ -236,9 +241,7 @@ def test_a_trajectory_that_ended_is_refused_and_one_that_starts_later_waits_hold
 
 def accepted(diags) -> int:
     """The controller's count of accepted trajectories, as last reported."""
-    counts = [int(kv.value) for d in diags for s in d.status if s.name == '/controller'
-              for kv in s.values if kv.key == 'trajectory_accepted_count']
-    return max(counts, default=0)
+    return count(diags, '/controller', 'trajectory_accepted')
 
 
 def send_until_accepted(ros, pub, diags, msg) -> None:

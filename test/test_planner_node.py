@@ -11,12 +11,14 @@ import time
 
 import numpy as np
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
+from conftest import events, statuses
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
+from arm_common.node import latched_qos
 from arm_dynamics import TwoLinkArm
 
 ARM = TwoLinkArm()  # the node's defaults are the contract's arm
@@ -48,9 +50,10 @@ def goal_msg(x: float, y: float, frame: str = 'base_link') -> PoseStamped:
     return msg
 
 
-def diag_texts(diags: list) -> list[str]:
-    return [f'{s.message} {[(kv.key, kv.value) for kv in s.values]}'
-            for d in diags for s in d.status if s.name == '/planner']
+def diag_texts(diags: list, task: str | None = None) -> list[str]:
+    """Messages of the planner's statuses (of ``task`` only, if given: ``'summary'`` or a
+    problem or event kind)."""
+    return [s.message for s in statuses(diags, '/planner', task)]
 
 
 def set_param(ros, name: str, value):
@@ -78,7 +81,8 @@ def connect(ros, diags: list):
 
 
 def wait_ready(ros, diags: list) -> None:
-    ros.wait_for(lambda: any('ready' in t or 'last plan' in t for t in diag_texts(diags)),
+    ros.wait_for(lambda: any(t.startswith(('ready', 'last plan'))
+                             for t in diag_texts(diags, 'summary')),
                  10, 'the planner to hold a joint state')
 
 
@@ -129,7 +133,8 @@ def test_goal_gives_one_trajectory_and_path_and_mode_changes_at_run_time(ros, la
     assert np.abs(fk[-1] - target).max() < 1e-9
     xy = np.array([[p.pose.position.x, p.pose.position.y] for p in paths[1].poses])
     assert np.abs((xy - start) @ np.array([-d[1], d[0]])).max() < 1e-9
-    ros.wait_for(lambda: any('last plan: straight_line' in t for t in diag_texts(diags)),
+    ros.wait_for(lambda: any(t.startswith('last plan: straight_line')
+                             for t in diag_texts(diags, 'summary')),
                  5, 'plan summary on /diagnostics')
     log = node.output()
     assert 'regulation (synchronized quintic, elbow down) to (0.5000, 1.0000) m' in log
@@ -157,8 +162,8 @@ def test_refused_goals_publish_nothing_and_are_reported(ros, launch, joint_feed)
     def refused(msg: PoseStamped, kind: str, words: str) -> None:
         diags.clear()
         goals.publish(msg)
-        ros.wait_for(lambda: any(t.startswith(f'{kind}: ') and words in t
-                                 for t in diag_texts(diags)), 10, f'{kind} report')
+        ros.wait_for(lambda: any(words in t for t in diag_texts(diags, kind)), 10,
+                     f'{kind} report')
         spin_for(ros, 0.2)
         assert not trajs and not paths, f'nothing published for a {kind} goal'
 
@@ -173,8 +178,8 @@ def test_refused_goals_publish_nothing_and_are_reported(ros, launch, joint_feed)
     assert set_param(ros, 'max_speed', 1e-6).successful
     diags.clear()  # goal_refused was just reported: re-send until this one's report passes
     ros.wait_for(lambda: goals.publish(goal_msg(0.5, 1.0)) or spin_for(ros, 0.1) or any(
-        t.startswith('goal_refused: ') and 'longer than 3600 s, the longest plan' in t
-        for t in diag_texts(diags)), 10, 'the degenerate max_speed refused')
+        'longer than 3600 s, the longest plan' in t for t in diag_texts(diags, 'goal_refused')),
+        10, 'the degenerate max_speed refused')
     assert not trajs and not paths
     assert set_param(ros, 'max_speed', 0.5).successful
     assert set_param(ros, 'mode', 'regulation').successful
@@ -183,6 +188,39 @@ def test_refused_goals_publish_nothing_and_are_reported(ros, launch, joint_feed)
     ros.wait_for(lambda: trajs, 10, 'a plan for a good goal')
     assert len(trajs[0].points) == 1, 'default regulation profile: a set point'
     assert np.abs(last_point_fk(trajs[0]) - [0.5, 1.0]).max() < 1e-9
+
+
+def test_a_display_started_after_the_plan_still_gets_its_path(ros, launch, joint_feed):
+    """planner/path is latched (transient local, depth 1, as robot_description is): a
+    subscriber asking for transient local, created after the path was published, gets
+    that path; a volatile one created then gets only later ones (here none)."""
+    launch('planner')
+    trajs = ros.collect(JointTrajectory, TRAJECTORY)
+    paths = ros.collect(Path, 'planner/path')
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    status = ros.publisher(DiagnosticStatus, 'arm_controller/trajectory_status')
+    goals = connect(ros, diags)
+    joint_feed['q'] = Q0
+    wait_ready(ros, diags)
+    ros.wait_for(lambda: status.get_subscription_count() >= 1, 10,
+                 'the planner to subscribe arm_controller/trajectory_status')
+    goals.publish(goal_msg(0.5, 1.0))
+    ros.wait_for(lambda: trajs and paths, 10, 'the plan')
+    # Confirm it as a controller does, so the planner does not send it again.
+    stamp = trajs[-1].header.stamp
+    status.publish(DiagnosticStatus(level=DiagnosticStatus.OK, name='controller',
+                                    message='accepted: by the test', values=[KeyValue(
+                                        key='stamp_ns',
+                                        value=str(stamp.sec * 1_000_000_000 + stamp.nanosec))]))
+    ros.wait_for(lambda: events(diags, '/planner', 'plan_accepted'), 10,
+                 'the planner to take the confirmation')
+    late = ros.collect(Path, 'planner/path', qos=latched_qos())
+    late_volatile = ros.collect(Path, 'planner/path')
+    ros.wait_for(lambda: late, 10, 'the path on a subscriber created after it was published')
+    spin_for(ros, 0.5)
+    assert len(paths) == 1 and len(late) == 1 and not late_volatile
+    xy = [[(p.pose.position.x, p.pose.position.y) for p in m.poses] for m in (paths[0], late[0])]
+    assert xy[0] == xy[1] and late[0].header == paths[0].header
 
 
 def test_help_and_refused_start_parameters(tmp_path):

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import statuses, values
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import JointState
 
@@ -18,12 +19,8 @@ N = 200
 
 def recorder_status(diags: list) -> dict:
     """Latest key/values the recorder reported on /diagnostics."""
-    values: dict = {}
-    for d in diags:
-        for s in d.status:
-            if s.name == '/recorder':
-                values = {kv.key: kv.value for kv in s.values} | {'_message': s.message}
-    return values
+    found = statuses(diags, '/recorder', 'summary')
+    return values(found[-1]) | {'_message': found[-1].message} if found else {}
 
 
 def recorder_endpoints(ros) -> set[bytes]:
@@ -151,8 +148,9 @@ def test_full_disk_stops_recording_with_one_error_and_a_readable_bag(ros, launch
         errors = [x for x in proc.output().splitlines() if 'ERROR' in x]
         assert len(errors) == 1 and 'No space left on device' in errors[0], proc.output()
         assert 'Traceback' not in proc.output()
-        ros.wait_for(lambda: any(s.level in (2, b'\x02') for d in diags for s in d.status
-                                 if s.name == '/recorder'), 5, 'ERROR on /diagnostics')
+        ros.wait_for(lambda: any(s.level in (2, b'\x02')
+                                 for s in statuses(diags, '/recorder', 'summary')),
+                     5, 'ERROR on /diagnostics')
         bag = read_bag(mnt / 'bag')
         assert len(bag.joint_states) > 100
         assert bag.joint_states.position[:, 0] == pytest.approx(

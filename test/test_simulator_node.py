@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import count, events, statuses, values
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from scipy.integrate import solve_ivp
 from sensor_msgs.msg import JointState
@@ -39,9 +40,9 @@ class Answerer:
         return t
 
 
-def diag_messages(diags: list, node: str = '/simulator') -> list[str]:
-    return [f'{s.message} {[(kv.key, kv.value) for kv in s.values]}'
-            for d in diags for s in d.status if s.name == node]
+def summaries(diags: list) -> list[str]:
+    """The messages of the simulator's periodic summary."""
+    return [s.message for s in statuses(diags, '/simulator', 'summary')]
 
 
 def test_lockstep_motion_under_constant_torque_matches_solve_ivp(ros, launch):
@@ -91,10 +92,10 @@ def test_bad_commands_are_refused_and_node_keeps_publishing(ros, launch):
     ros.wait_for(lambda: states[-1].effort == pytest.approx(good), what='good command applied')
     bad_inputs = {'non-finite': [math.nan, 1.0], 'infinite': [math.inf, 0.0],
                   'too short': [1.0], 'too long': [1.0, 2.0, 3.0]}
-    for label, data in bad_inputs.items():
-        diags.clear()
+    for k, (label, data) in enumerate(bad_inputs.items(), start=1):
         pub.publish(Float64MultiArray(data=data))
-        ros.wait_for(lambda: any('rejected_command' in m for m in diag_messages(diags)),
+        # Counted at once; reported at once, or (throttled) with the next periodic report.
+        ros.wait_for(lambda: count(diags, '/simulator', 'rejected_command') >= k,
                      what=f'/diagnostics report of the {label} command')
         n = len(states)
         ros.wait_for(lambda: len(states) > n + 3, what='states after the bad command')
@@ -123,8 +124,12 @@ def test_command_timeout_sets_torque_to_zero_and_reports(ros, launch):
     ros.wait_for(lambda: states[-1].effort == pytest.approx([10.0, 2.0]), what='command')
     ros.wait_for(lambda: list(states[-1].effort) == [0.0, 0.0], timeout=5,
                  what='zero torque after the timeout')
-    ros.wait_for(lambda: any('command_timeout' in m for m in diag_messages(diags)),
-                 what='timeout on /diagnostics')
+    timeout = ros.wait_for(lambda: statuses(diags, '/simulator', 'command_timeout'),
+                           what='timeout on /diagnostics')[0]
+    assert timeout.level == DiagnosticStatus.WARN and values(timeout)['command_timeout'] == '0.3'
+    # The periodic summary says so too, while its own status stays apart.
+    ros.wait_for(lambda: 'command timeout: applying zero torque' in summaries(diags),
+                 what='the summary of the timeout')
 
 
 def test_reset_restores_the_initial_state(ros, launch):
@@ -156,8 +161,9 @@ def test_divergence_stops_integration_and_holds_last_good_state(ros, launch):
     for k in range(1, 4):
         pub.publish(command([1e6, -1e6]))
         ros.wait_for(lambda: stamp(states[-1]) >= 0.01 * k - 1e-9, what=f'step {k}')
-    ros.wait_for(lambda: any('diverged' in m for m in diag_messages(diags)),
-                 what='divergence reported')
+    diverged = ros.wait_for(lambda: statuses(diags, '/simulator', 'diverged'),
+                            what='divergence reported')[0]
+    assert diverged.level == DiagnosticStatus.ERROR
     held = states[-1]
     assert np.isfinite(held.position).all() and np.abs(held.velocity).max() <= 100.0
     assert list(held.effort) == [0.0, 0.0], 'no torque applied while diverged'
@@ -177,16 +183,15 @@ def test_a_runaway_is_reported_once_held_and_recovered_by_reset(ros, launch):
     pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
     ros.wait_for(lambda: states, what='first joint state')
 
-    def events(kind: str) -> list:
-        return [s for d in diags for s in d.status if s.name == '/simulator'
-                and any(kv.key == 'event' and kv.value == kind for kv in s.values)]
+    def reported(kind: str) -> list:
+        return events(diags, '/simulator', kind)
 
     drive = Answerer(states, pub, [0.0, 20.0])
-    fault = ros.wait_for(lambda: drive() is not None and events('runaway'), timeout=60,
+    fault = ros.wait_for(lambda: drive() is not None and reported('runaway'), timeout=60,
                          what='the runaway fault')[0]
     assert fault.level == DiagnosticStatus.ERROR
     assert 'runaway at t=' in fault.message and 'joint 2 speed' in fault.message
-    assert events('outside_limits'), 'leaving the limits was reported before the fault'
+    assert reported('outside_limits'), 'leaving the limits was reported before the fault'
     # Held: further commands advance time but the state stays the last good one.
     n = len(states)
     ros.wait_for(lambda: drive() is not None and len(states) > n + 5,
@@ -195,7 +200,7 @@ def test_a_runaway_is_reported_once_held_and_recovered_by_reset(ros, launch):
     assert all(m.position == held[0].position for m in held), 'the last good state is held'
     assert np.abs(held[0].velocity).max() <= 16.0, 'the held state is inside the envelope'
     assert all(list(m.effort) == [0.0, 0.0] for m in held[1:]), 'no torque while faulted'
-    assert len(events('runaway')) == 1, 'reported once'
+    assert len(reported('runaway')) == 1, 'reported once'
     n, d0 = len(states), len(diags)
     assert ros.call(Trigger, '/simulator/reset', Trigger.Request()).success
     reset = ros.wait_for(lambda: [m for m in states[n:] if m.position == pytest.approx(
@@ -206,8 +211,13 @@ def test_a_runaway_is_reported_once_held_and_recovered_by_reset(ros, launch):
     ros.wait_for(lambda: run_on() > stamp(reset) + 0.015,
                  what='the simulation to run again after reset')
     ros.wait_for(lambda: [run_on()] and any(  # driven on: a waiting simulator says WARN
-        s.name == '/simulator' and s.level == DiagnosticStatus.OK
-        for d in diags[d0:] for s in d.status), what='the summary back to OK')
+        s.level == DiagnosticStatus.OK for s in statuses(diags[d0:], '/simulator', 'summary')),
+        what='the summary back to OK')
+    # The fault's own status persists, decayed to OK with its count once it is over.
+    ros.wait_for(lambda: [run_on()] and [
+        s for s in statuses(diags[d0:], '/simulator', 'runaway')
+        if s.level == DiagnosticStatus.OK and values(s).get('last_level') == 'ERROR'
+        and values(s)['count'] == '1'], what='the runaway status decayed to OK')
 
 
 def test_lockstep_pauses_at_pause_at_and_resumes_when_it_moves(ros, launch):
@@ -222,7 +232,7 @@ def test_lockstep_pauses_at_pause_at_and_resumes_when_it_moves(ros, launch):
 
     diags = ros.collect(DiagnosticArray, '/diagnostics')
     ros.wait_for(answer(0.05), what='time to reach pause_at')
-    ros.wait_for(lambda: any('paused at t=0.050' in m for m in diag_messages(diags)),
+    ros.wait_for(lambda: any('paused at t=0.050' in m for m in summaries(diags)),
                  what='the simulator to report the pause')
     assert max(stamp(m) for m in states) == pytest.approx(0.05), 'time stood at pause_at'
     assert ros.set_params('/simulator', pause_at=-1.0)[0].successful
@@ -270,13 +280,14 @@ def test_real_time_reports_when_it_cannot_keep_up(ros, launch):
     launch('simulator', params={'timing_mode': 'real_time', 'real_time_factor': 1000.0,
                                 'wait_for_command': False})
     diags = ros.collect(DiagnosticArray, '/diagnostics')
-    ros.wait_for(lambda: any('overrun' in m for m in diag_messages(diags)),
-                 what='the overrun report')
+    overrun = ros.wait_for(lambda: statuses(diags, '/simulator', 'overrun'),
+                           what='the overrun report')[0]
+    assert float(values(overrun)['simulated_time_given_up']) > 0
 
 
 def diag_values(diags: list, node: str = '/simulator') -> list[dict[str, str]]:
-    return [{kv.key: kv.value for kv in s.values} for d in diags for s in d.status
-            if s.name == node]
+    """The key-values of every status of ``node`` (its summary and each kind's)."""
+    return [values(s) for s in statuses(diags, node)]
 
 
 def test_lockstep_stands_still_for_a_silent_controller_and_reports_the_wait(ros, launch):

@@ -7,7 +7,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import NewRun
+from conftest import NewRun, events, statuses, values
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
@@ -50,8 +50,9 @@ def connect(ros, prefix: str = ''):
     goals = ros.publisher(PoseStamped, f'{prefix}goal_pose')
     ros.wait_for(lambda: states and stamp(states[-1]) > 0.1, timeout=30,
                  what=f'the {prefix or "/"} loop to run')
-    ros.wait_for(lambda: any(s.name == planner and s.message.startswith(('ready', 'last'))
-                             for d in diags for s in d.status), what=f'{planner} ready')
+    ros.wait_for(lambda: any(s.message.startswith(('ready', 'last'))
+                             for s in statuses(diags, planner, 'summary')),
+                 what=f'{planner} ready')
     ros.wait_for(lambda: goals.get_subscription_count() > 0 and ros.node.count_publishers(
         f'{prefix}arm_controller/joint_trajectory') > 0, what='the planner')
     return states, trajs, goals
@@ -169,7 +170,7 @@ def test_nodes_started_in_a_namespace_run_on_their_own_simulators_clock(ros, lau
         try:
             return [t for t, _ in ros.node.get_subscriber_names_and_types_by_node(name,
                                                                                   '/arm3')]
-        except Exception:  # noqa: BLE001 -- rclpy's NodeNameNonExistentError: not seen yet
+        except Exception:  # rclpy's NodeNameNonExistentError: not seen yet
             return []
 
     def clock_subscribers():
@@ -256,8 +257,7 @@ def test_a_goal_sent_right_after_a_controller_restart_is_executed(ros, launch):
     diags = ros.collect(DiagnosticArray, '/diagnostics')
 
     def planner_events(kinds, since):
-        return [v for d in diags[since:] for s in d.status if s.name == '/planner'
-                for v in [{kv.key: kv.value for kv in s.values}]
+        return [v for s in statuses(diags[since:], '/planner') for v in [values(s)]
                 if v.get('event', '').startswith(kinds)]
 
     for k, target in enumerate((PF, PS, PF)):
@@ -285,8 +285,7 @@ def test_a_motion_cut_by_a_simulator_restart_is_planned_again_and_finished(ros, 
     diags = ros.collect(DiagnosticArray, '/diagnostics')
 
     def planner_event(kind):
-        return [v for d in diags for s in d.status if s.name == '/planner'
-                for v in [{kv.key: kv.value for kv in s.values}] if v.get('event') == kind]
+        return [values(s) for s in events(diags, '/planner', kind)]
 
     pause = ros.pause_simulator_now(diags)
     goals.publish(goal(*PF))
@@ -317,7 +316,7 @@ def test_a_motion_cut_by_a_simulator_restart_is_planned_again_and_finished(ros, 
     except pytest.fail.Exception:
         run = new_run() or []
         summary = [f'{s.message} {[(kv.key, kv.value) for kv in s.values]}'
-                   for d in diags[-20:] for s in d.status if s.name == '/simulator']
+                   for s in statuses(diags[-20:], '/simulator', 'summary')]
         pytest.fail(f'the new arm did not reach the goal: {len(run)} new states, the last '
                     f'at t={stamp(run[-1]) if run else None} s, tip '
                     f'{tip(run[-1:]).tolist() if run else None}; last states '
