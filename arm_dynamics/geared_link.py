@@ -6,6 +6,11 @@ damping on both sides of the gear. Lagrange gives, on the motor side::
 
     J theta_m'' + B theta_m' + C sin(theta_m / n) = u
     J = Jm + Jl/n^2,   B = Bm + Bl/n^2,   C = M g l / n
+
+References: Spong, Hutchinson, Vidyasagar, *Robot Modeling and Control*, Independent
+Joint Control chapter (actuator dynamics with gear reduction); Siciliano et al.,
+*Robotics: Modelling, Planning and Control* (2009), §5.1 (transmissions, reflected
+inertia) and §8.3.
 """
 
 from __future__ import annotations
@@ -90,6 +95,34 @@ class SingleLinkGeared:
         thdd = _arr('theta_m_ddot', theta_m_ddot)
         return (self.inertia * thdd + self.damping * thd
                 + self.gravity_coefficient * np.sin(th / self.gear_ratio))
+
+    def link_torque(self, theta_m, theta_m_dot, u) -> np.ndarray:
+        """Torque the gear's output shaft applies to the link [N m] under motor torque ``u``.
+
+        The motor shaft spends part of ``u`` on its own inertia and damping; the ideal gear
+        multiplies the rest by ``n``::
+
+            tau_l = n (u - Jm theta_m'' - Bm theta_m'),   theta_m'' = forward_dynamics(...)
+
+        which is what the link's own equation needs, ``tau_l = Jl theta_l'' + Bl theta_l'
+        + M g l sin(theta_l)`` with ``theta_l = theta_m / n``. It equals ``n u`` only when
+        the motor shaft neither accelerates nor turns (at rest, or ``Jm = Bm = 0``):
+        starting from rest hanging straight down, ``tau_l = n u (Jl / n^2) / J``; with the
+        defaults (``Jl / n^2 = 4e-4``, ``J = 5.4e-3`` kg m^2) that is 7% of ``n u``.
+
+        Parameters
+        ----------
+        theta_m : rad (motor angle); theta_m_dot : rad/s; u : N m (motor torque). Scalars
+            or arrays of one shape (broadcast).
+
+        Returns
+        -------
+        N m, the shape of the broadcast inputs.
+        """
+        thd = _arr('theta_m_dot', theta_m_dot)
+        acc = self.forward_dynamics(theta_m, thd, u)
+        return self.gear_ratio * (_arr('u', u) - self.motor_inertia * acc
+                                  - self.motor_damping * thd)
 
     def energy(self, theta_m, theta_m_dot) -> tuple[np.ndarray, np.ndarray]:
         """(kinetic, potential) energy [J]; potential is zero hanging straight down."""

@@ -163,15 +163,18 @@ class SimulatorCore:
     def joint_view(self) -> JointView:
         """Positions [rad], velocities [rad/s] and applied efforts [N m] to publish.
 
-        The geared link shows the motor shaft (``<joint>_motor``) and the link
-        (``<joint>``, motor quantities divided by the gear ratio, torque multiplied).
+        The geared link shows the motor shaft (``<joint>_motor``: angle, speed, applied
+        motor torque u) and the link (``<joint>``: motor angle and speed divided by the
+        gear ratio; effort = the torque the gear applies to the link at this state under
+        u, :meth:`SingleLinkGeared.link_torque`, which is ``n u`` only at rest).
         """
         q, qd, tau = self.q.tolist(), self.qd.tolist(), self.applied.tolist()
         if isinstance(self.model, SingleLinkGeared):
             n = self.model.gear_ratio
             j = self.joint_names[0]
+            link_tau = float(self.model.link_torque(q[0], qd[0], tau[0]))
             return JointView((f'{j}_motor', j), [q[0], q[0] / n], [qd[0], qd[0] / n],
-                             [tau[0], tau[0] * n])
+                             [tau[0], link_tau])
         return JointView(self.joint_names[: self.n], q, qd, tau)
 
 

@@ -16,13 +16,41 @@ With ``a = m1 lc1^2 + m2 (l1^2 + lc2^2) + I1 + I2``, ``b = m2 l1 lc2`` and
 Every state-taking method accepts one state, shape ``(2,)``, or a batch, shape ``(N, 2)``
 (any leading shape broadcasts). Single states take a pure-float path: a forward-dynamics
 call costs a few microseconds, which keeps the simulator and benchmarks fast.
+
+Kinematics (the one place their formulas live; planner, analysis and tests call these):
+forward kinematics ``p = (l1 cos q1 + l2 cos(q1 + q2), l1 sin q1 + l2 sin(q1 + q2))``, the
+Jacobian ``J = dp/dq``, ``J' q'`` (so ``p'' = J q'' + J' q'``), closed-form inverse
+kinematics with an elbow choice, and the workspace check that refuses a point with the
+numbers. Angles are counter-clockwise positive, y up.
+
+Elbow branches: every reachable point off the workspace boundary has two solutions, mirror
+images about the line from the base to the point.
+
+* ``'down'``: ``q2 > 0`` (``sin q2 > 0``). The elbow lies clockwise of the base-to-tip
+  line, i.e. *below* it when the arm reaches towards +x.
+* ``'up'``: ``q2 < 0`` (``sin q2 < 0``). The elbow lies counter-clockwise of that line,
+  *above* it when reaching towards +x.
+
+(With ``q2 > 0`` link 2 turns counter-clockwise from link 1, so link 1 must point below the
+target direction: ``q1 = atan2(y, x) - atan2(l2 sin q2, l1 + l2 cos q2)``.) A
+configuration with ``sin q2 = 0`` (arm stretched or folded) is singular (``det J = l1 l2
+sin q2``) and counts as ``'down'`` where a branch must be named. ``cos q2 = (r^2 - l1^2 -
+l2^2) / (2 l1 l2)`` depends on the tip's distance ``r`` from the base only, so ``|sin q2|``
+is smallest at the ends of the reachable annulus ``|l1 - l2| <= r <= l1 + l2``.
+
+References: Siciliano et al., *Robotics: Modelling, Planning and Control* (2009), §7.1
+(Lagrange formulation), §7.2 (skew-symmetry of D' - 2C), §7.3.2 (this arm); Spong,
+Hutchinson, Vidyasagar, *Robot Modeling and Control*, the planar elbow manipulator
+(Dynamics chapter, "some common configurations"); forward kinematics and the Jacobian:
+Siciliano et al. §2.9, §3.1.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -128,9 +156,15 @@ class TwoLinkArm:
     gravity: float = 9.81
     joint_damping: Pair = (0.0, 0.0)
     n_dof: int = field(default=2, init=False)
+    # Derived in __post_init__, not arguments: the lumped constants (a, b, d, g1, g2, b1,
+    # b2) and the formulas built from them (float and array versions).
+    _k: tuple[float, ...] = field(init=False, repr=False, compare=False)
+    _acc_float: Callable[..., Any] = field(init=False, repr=False, compare=False)
+    _acc_array: Callable[..., Any] = field(init=False, repr=False, compare=False)
+    _tau_float: Callable[..., Any] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        checks = {
+        checks: dict[str, dict[str, Any]] = {
             'link_lengths': dict(minimum=0.0, strict=True),
             'com_distances': dict(minimum=0.0),
             'link_masses': dict(minimum=0.0, strict=True),
@@ -169,8 +203,11 @@ class TwoLinkArm:
         return cls(**{k: params[k] for k in cls.PARAMETERS if k in params})
 
     # ------------------------------------------------------------------ core formulas
-    def _rk4(self, acc: Callable, q1, q2, qd1, qd2, t1, t2, dt: float, n_steps: int):
-        """Classic RK4 with the torque held over each step; floats or arrays."""
+    def _rk4(self, acc: Callable, x: Sequence[Any], dt: float, n_steps: int
+             ) -> tuple[Any, Any, Any, Any]:
+        """Classic RK4 with the torque held over each step; ``x`` = (q1, q2, qd1, qd2, t1,
+        t2), floats or arrays."""
+        q1, q2, qd1, qd2, t1, t2 = x
         h2 = 0.5 * dt
         h6 = dt / 6.0
         for _ in range(n_steps):
@@ -227,9 +264,9 @@ class TwoLinkArm:
         x = _fast_floats(q, qd, tau)
         if x is not None:
             return np.array(self._acc_float(*x))
-        s = (_pair('q', q), _pair('qd', qd), _pair('tau', tau))
-        if None not in s:
-            return np.array(self._acc_float(*s[0], *s[1], *s[2]))
+        sq, sqd, stau = _pair('q', q), _pair('qd', qd), _pair('tau', tau)
+        if sq is not None and sqd is not None and stau is not None:
+            return np.array(self._acc_float(*sq, *sqd, *stau))
         q, qd, tau = (state_array(n, v, 2) for n, v in (('q', q), ('qd', qd), ('tau', tau)))
         out = self._acc_array(q[..., 0], q[..., 1], qd[..., 0], qd[..., 1],
                           tau[..., 0], tau[..., 1])
@@ -243,9 +280,9 @@ class TwoLinkArm:
         x = _fast_floats(q, qd, qdd)
         if x is not None:
             return np.array(self._tau_float(*x))
-        s = (_pair('q', q), _pair('qd', qd), _pair('qdd', qdd))
-        if None not in s:
-            return np.array(self._tau_float(*s[0], *s[1], *s[2]))
+        sq, sqd, sqdd = _pair('q', q), _pair('qd', qd), _pair('qdd', qdd)
+        if sq is not None and sqd is not None and sqdd is not None:
+            return np.array(self._tau_float(*sq, *sqd, *sqdd))
         qdd = state_array('qdd', qdd, 2)
         return (np.einsum('...ij,...j->...i', self.mass_matrix(q), qdd)
                 + np.einsum('...ij,...j->...i', self.coriolis_matrix(q, qd), qd)
@@ -260,36 +297,20 @@ class TwoLinkArm:
         n_steps = step_count('n_steps', n_steps)
         x = _fast_floats(q, qd, tau)
         if x is None:
-            s = (_pair('q', q), _pair('qd', qd), _pair('tau', tau))
-            x = None if None in s else [*s[0], *s[1], *s[2]]
+            sq, sqd, stau = _pair('q', q), _pair('qd', qd), _pair('tau', tau)
+            if sq is not None and sqd is not None and stau is not None:
+                x = [*sq, *sqd, *stau]
         if x is not None:
             try:
-                q1, q2, qd1, qd2 = self._rk4(self._acc_float, *x, dt, n_steps)
+                q1, q2, qd1, qd2 = self._rk4(self._acc_float, x, dt, n_steps)
             except (ValueError, OverflowError):  # math.cos(inf): diverged, as numpy would
                 q1 = q2 = qd1 = qd2 = math.nan
             return np.array((q1, q2)), np.array((qd1, qd2))
         q, qd, tau = (state_array(n, v, 2) for n, v in (('q', q), ('qd', qd), ('tau', tau)))
-        q1, q2, qd1, qd2 = self._rk4(self._acc_array, q[..., 0], q[..., 1], qd[..., 0],
-                                     qd[..., 1], tau[..., 0], tau[..., 1], dt, n_steps)
+        q1, q2, qd1, qd2 = self._rk4(self._acc_array, (q[..., 0], q[..., 1], qd[..., 0],
+                                     qd[..., 1], tau[..., 0], tau[..., 1]), dt, n_steps)
         q1, q2, qd1, qd2 = np.broadcast_arrays(q1, q2, qd1, qd2)
         return np.stack((q1, q2), -1), np.stack((qd1, qd2), -1)
-
-    def forward_kinematics(self, q) -> np.ndarray:
-        """End-effector position (x, y) [m] in the base frame: shape (2,) or (..., 2)."""
-        q = state_array('q', q, 2)
-        l1, l2 = self.link_lengths
-        q12 = q[..., 0] + q[..., 1]
-        return np.stack([l1 * np.cos(q[..., 0]) + l2 * np.cos(q12),
-                         l1 * np.sin(q[..., 0]) + l2 * np.sin(q12)], -1)
-
-    def jacobian(self, q) -> np.ndarray:
-        """d(x, y)/dq [m/rad]: shape (2, 2) or (..., 2, 2)."""
-        q = state_array('q', q, 2)
-        l1, l2 = self.link_lengths
-        q12 = q[..., 0] + q[..., 1]
-        s12, c12 = l2 * np.sin(q12), l2 * np.cos(q12)
-        return np.stack([np.stack([-l1 * np.sin(q[..., 0]) - s12, -s12], -1),
-                         np.stack([l1 * np.cos(q[..., 0]) + c12, c12], -1)], -2)
 
     def energy(self, q, qd) -> tuple[np.ndarray, np.ndarray]:
         """(kinetic, potential) energy [J]; potential is zero at the base height."""
@@ -302,3 +323,165 @@ class TwoLinkArm:
         y1 = lc1 * np.sin(q[..., 0])
         y2 = l1 * np.sin(q[..., 0]) + lc2 * np.sin(q[..., 0] + q[..., 1])
         return kinetic, self.gravity * (m1 * y1 + m2 * y2)
+
+    # ------------------------------------------------------------------ kinematics
+    #: Elbow branches of :meth:`inverse_kinematics` (see the module docstring).
+    ELBOWS = ('up', 'down')
+
+    def forward_kinematics(self, q) -> np.ndarray:
+        """End-effector position ``p = (x, y)`` in the base frame.
+
+        Parameters
+        ----------
+        q : (2,) or (..., 2), rad
+
+        Returns
+        -------
+        p : (2,) or (..., 2), m
+            ``(l1 cos q1 + l2 cos(q1 + q2), l1 sin q1 + l2 sin(q1 + q2))``.
+        """
+        q = state_array('q', q, 2)
+        l1, l2 = self.link_lengths
+        q12 = q[..., 0] + q[..., 1]
+        return np.stack([l1 * np.cos(q[..., 0]) + l2 * np.cos(q12),
+                         l1 * np.sin(q[..., 0]) + l2 * np.sin(q12)], -1)
+
+    def jacobian(self, q) -> np.ndarray:
+        """``J(q) = dp/dq``, so that the tip velocity is ``p' = J q'``.
+
+        Parameters
+        ----------
+        q : (2,) or (..., 2), rad
+
+        Returns
+        -------
+        J : (2, 2) or (..., 2, 2), m/rad
+            Rows x, y; columns q1, q2. ``det J = l1 l2 sin q2``.
+        """
+        q = state_array('q', q, 2)
+        l1, l2 = self.link_lengths
+        q12 = q[..., 0] + q[..., 1]
+        s12, c12 = l2 * np.sin(q12), l2 * np.cos(q12)
+        return np.stack([np.stack([-l1 * np.sin(q[..., 0]) - s12, -s12], -1),
+                         np.stack([l1 * np.cos(q[..., 0]) + c12, c12], -1)], -2)
+
+    def jdot_qd(self, q, qd) -> np.ndarray:
+        """``J'(q, q') q'``: the tip acceleration at zero joint acceleration, so that
+        ``p'' = J q'' + J' q'``.
+
+        Parameters
+        ----------
+        q : (2,) or (..., 2), rad
+        qd : (2,) or (..., 2), rad/s (any time unit: the result is in m per that unit^2)
+
+        Returns
+        -------
+        (2,) or (..., 2), m/s^2
+            ``-(l1 cos q1 q1'^2 + l2 cos(q1 + q2) (q1' + q2')^2,
+            l1 sin q1 q1'^2 + l2 sin(q1 + q2) (q1' + q2')^2)`` (centripetal only: ``J`` is
+            linear in the cosines and sines of the link angles).
+        """
+        q = state_array('q', q, 2)
+        qd = state_array('qd', qd, 2)
+        l1, l2 = self.link_lengths
+        w1, w12 = qd[..., 0], qd[..., 0] + qd[..., 1]
+        q12 = q[..., 0] + q[..., 1]
+        return -np.stack(np.broadcast_arrays(
+            l1 * np.cos(q[..., 0]) * w1**2 + l2 * np.cos(q12) * w12**2,
+            l1 * np.sin(q[..., 0]) * w1**2 + l2 * np.sin(q12) * w12**2), -1)
+
+    def elbow_of(self, q) -> str | np.ndarray:
+        """The elbow branch of configuration(s) ``q`` (2,) or (..., 2) [rad]: ``'down'``
+        where ``sin q2 >= 0`` (the singular ``sin q2 = 0`` counts as down), else ``'up'``;
+        a str for one configuration, an array of str for a batch."""
+        q = state_array('q', q, 2)
+        down = np.sin(q[..., 1]) >= 0.0
+        return ('down' if down else 'up') if q.ndim == 1 else np.where(down, 'down', 'up')
+
+    def cos_q2(self, r) -> np.ndarray:
+        """``cos q2`` [-] of the configurations whose tip is at distance ``r`` [m] (any
+        shape) from the base: ``(r^2 - l1^2 - l2^2) / (2 l1 l2)``. Not clipped: values
+        outside [-1, 1] mean ``r`` is out of reach."""
+        l1, l2 = self.link_lengths
+        r = np.asarray(r, dtype=float)
+        return (r * r - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
+
+    def abs_sin_q2(self, r) -> np.ndarray:
+        """``|sin q2|`` [-] at tip distance ``r`` [m] (any shape) from the base; 0 where out
+        of reach. ``|det J| = l1 l2 |sin q2|`` depends on ``r`` only and is smallest at the
+        ends of the reachable annulus."""
+        c2 = self.cos_q2(r)
+        return np.sqrt(np.clip((1.0 - c2) * (1.0 + c2), 0.0, None))
+
+    def inverse_kinematics(self, p, elbow: str) -> np.ndarray:
+        """Joint angles putting the tip at ``p``, closed form, on the chosen elbow branch.
+
+        Parameters
+        ----------
+        p : (2,) or (..., 2), m
+            Tip position(s) in the base frame. Points outside the reachable annulus are
+            clipped to its boundary; refuse them first with :meth:`workspace_violation`.
+        elbow : 'up' or 'down'
+            ``'down'`` gives ``q2 in [0, pi]``, ``'up'`` gives ``q2 in [-pi, 0]``.
+
+        Returns
+        -------
+        q : (2,) or (..., 2), rad
+            ``q1`` in (-pi, pi] (``atan2`` range), ``q2`` as above; ``forward_kinematics(q)
+            == p`` to rounding for reachable ``p``.
+        """
+        if elbow not in self.ELBOWS:
+            raise ValueError(f"elbow must be 'up' or 'down', got {elbow!r}")
+        p = state_array('p', p, 2)
+        l1, l2 = self.link_lengths
+        x, y = p[..., 0], p[..., 1]
+        c2 = np.clip(self.cos_q2(np.hypot(x, y)), -1.0, 1.0)
+        s2 = np.sqrt((1.0 - c2) * (1.0 + c2))  # accurate near c2 = +-1
+        if elbow == 'up':
+            s2 = -s2
+        q2 = np.arctan2(s2, c2)
+        q1 = np.arctan2(y, x) - np.arctan2(l2 * s2, l1 + l2 * c2)
+        q1 = np.arctan2(np.sin(q1), np.cos(q1))  # wrap to (-pi, pi]
+        return np.stack([q1, q2], -1)
+
+    def workspace_violation(self, p, reach_margin: float = 0.0,
+                            singularity_margin: float = 0.0,
+                            what: str = 'point') -> str | None:
+        """Why tip position ``p`` must be refused (with the numbers), or None.
+
+        Parameters
+        ----------
+        p : (2,), m
+        reach_margin : m, >= 0
+            Distance kept from both boundaries of the annulus: ``|l1 - l2| + reach_margin
+            <= r <= l1 + l2 - reach_margin`` with ``r = |p|``.
+        singularity_margin : [-], in [0, 1)
+            Minimum ``|sin q2|`` (:meth:`abs_sin_q2`): it bounds the joint speeds a tip
+            speed needs, ``|q'| <~ |p'| / (l_min |sin q2|)``.
+        what : name of the point in the message.
+
+        Returns
+        -------
+        str or None
+            Non-finite or not two numbers, out of reach, too close to the base, or too
+            near a singularity; None if ``p`` is fine.
+        """
+        l1, l2 = self.link_lengths
+        p = np.asarray(p, dtype=float)
+        if p.shape != (2,) or not np.isfinite(p).all():
+            return f'{what} must be two finite numbers (x, y) in m, got {p.tolist()}'
+        r = math.hypot(p[0], p[1])
+        lo, hi = abs(l1 - l2) + reach_margin, l1 + l2 - reach_margin
+        where = f'{what} ({p[0]:.4f}, {p[1]:.4f}) m'
+        if r > hi:
+            return (f'{where} is out of reach: r = {r:.4f} m > l1 + l2 - reach_margin = '
+                    f'{l1 + l2:.4f} - {reach_margin:g} = {hi:.4f} m')
+        if r < lo:
+            return (f'{where} is too close to the base: r = {r:.4f} m < |l1 - l2| + '
+                    f'reach_margin = {abs(l1 - l2):.4f} + {reach_margin:g} = {lo:.4f} m')
+        s = float(self.abs_sin_q2(r))
+        if s < singularity_margin:
+            return (f'{where} is too near a singularity: |sin q2| = {s:.4f} < '
+                    f'singularity_margin {singularity_margin:g} (r = {r:.4f} m; arm almost '
+                    f"{'stretched' if self.cos_q2(r) > 0 else 'folded'})")
+        return None

@@ -16,18 +16,16 @@ from arm_bag.cdr import decode_joint_states_bulk, encode_joint_state
 from arm_bag.reader import read_bag
 from arm_bag.synthetic import open_bag, write_run
 from arm_bag.writer import BagWriteError, BagWriter
+from arm_dynamics import TwoLinkArm
 
 ROOT = Path(__file__).resolve().parents[1]
-L1, L2 = 1.0, 0.8
+ARM = TwoLinkArm()
 
 
 def ik(xy: np.ndarray) -> np.ndarray:
-    """Elbow-up inverse kinematics of the default arm, (N, 2) m -> (N, 2) rad."""
-    x, y = xy[:, 0], xy[:, 1]
-    c2 = (x * x + y * y - L1 * L1 - L2 * L2) / (2 * L1 * L2)
-    q2 = np.arccos(np.clip(c2, -1, 1))
-    q1 = np.arctan2(y, x) - np.arctan2(L2 * np.sin(q2), L1 + L2 * np.cos(q2))
-    return np.stack([q1, q2], 1)
+    """The default arm's joint angles for tip points (elbow 'down', q2 >= 0), (N, 2) m ->
+    (N, 2) rad, unwrapped so a path stays continuous."""
+    return np.unwrap(ARM.inverse_kinematics(xy, 'down'), axis=0)
 
 
 # ---------------------------------------------------------------------- metrics

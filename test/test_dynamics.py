@@ -13,6 +13,7 @@ stated in the assertion message. Runtime is a few seconds.
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -397,6 +398,57 @@ def test_geared_link_small_oscillation_period_is_two_pi_sqrt_j_n_over_c():
     assert abs(qd[0] - run.qd[300, 0]) < 1e-10, 'geared link: Lagrangian vs closed form qd'
 
 
+def test_geared_link_torque_is_what_the_link_equation_needs_at_random_states():
+    rng = np.random.default_rng(14)
+    for _ in range(50):
+        p = {'motor_inertia': rng.uniform(1e-4, 1e-2), 'load_inertia': rng.uniform(0.0, 2.0),
+             'motor_damping': rng.uniform(0.0, 0.1), 'load_damping': rng.uniform(0.0, 1.0),
+             'gear_ratio': rng.uniform(1.0, 100.0), 'mass': rng.uniform(0.0, 5.0),
+             'length': rng.uniform(0.0, 1.0), 'gravity': rng.uniform(0.0, 20.0)}
+        link, n = SingleLinkGeared(**p), p['gear_ratio']
+        th, thd, u = rng.uniform(-100.0, 100.0), *rng.uniform(-50.0, 50.0, 2)
+        acc = link.forward_dynamics(th, thd, u)  # motor side; the link's is acc / n
+        needed = (p['load_inertia'] * acc / n + p['load_damping'] * thd / n
+                  + p['mass'] * p['gravity'] * p['length'] * np.sin(th / n))
+        scale = n * (abs(u) + p['motor_inertia'] * abs(acc) + p['motor_damping'] * abs(thd))
+        assert abs(link.link_torque(th, thd, u) - needed) < 1e-12 * max(1.0, scale), \
+            'n (u - Jm th_m" - Bm th_m\') = Jl th_l" + Bl th_l\' + M g l sin th_l (1e-12 rel.)'
+    link = SingleLinkGeared()
+    assert link.link_torque(0.0, 0.0, 0.0) == 0.0
+    hold = link.gravity_coefficient * np.sin(0.3)  # u holding the link at 0.3 rad
+    assert link.link_torque(0.3 * link.gear_ratio, 0.0, hold) == pytest.approx(
+        link.gear_ratio * hold, rel=1e-12), 'at rest the link torque is n u'
+    assert link.link_torque(np.zeros(3), 0.0, np.ones(3)).shape == (3,)
+
+
+def test_geared_link_published_effort_is_the_link_torque_along_a_simulated_motion():
+    from arm_dynamics.simulation import SimulatorCore
+    link = SingleLinkGeared()  # the simulator's geared.* defaults
+    n, h = link.gear_ratio, 1e-3
+    core = SimulatorCore(link, q0=[0.3 * n], qd0=[0.0], effort_limits=[1.0],
+                         physics_step_ns=100_000, control_period_ns=1_000_000,
+                         velocity_limit=1e3, joint_names=['joint1'])
+    rows = []
+    for k in range(3000):  # 1 s each of u = 0.4, -0.3, 0.05 N m
+        core.set_command([(0.4, -0.3, 0.05)[k // 1000]])
+        core.advance()
+        view = core.joint_view()
+        assert view.names == ('joint1_motor', 'joint1')
+        rows.append((view.position[1], view.velocity[1], view.effort[0], view.effort[1]))
+    th, thd, u, effort = np.array(rows).T
+    # The link's acceleration by central differences of its published speed (error ~h^2),
+    # away from the command steps, where it jumps.
+    acc = np.gradient(thd, h)
+    ok = np.ones(len(th), bool)
+    for k in (0, 999, 1000, 1999, 2000, 2999):
+        ok[max(k - 1, 0):k + 2] = False
+    needed = (link.load_inertia * acc + link.load_damping * thd
+              + link.mass * link.gravity * link.length * np.sin(th))
+    err = np.abs(effort - needed)[ok].max()
+    assert err < 1e-5, f'link effort vs Jl th" + Bl th\' + M g l sin th: {err:.2e} N m (1e-5)'
+    assert np.abs(n * u - needed)[ok].max() > 10.0, 'n u is not the link torque: 20 N m off'
+
+
 def test_lagrangian_system_from_user_callables_derives_the_pendulum():
     # Any analytic D(q), PE(q) works: a pendulum written by hand.
     m, lc, g0 = 2.0, 0.7, 9.81
@@ -407,6 +459,113 @@ def test_lagrangian_system_from_user_callables_derives_the_pendulum():
     expected = m * lc**2 * qdd + m * g0 * lc * np.sin(q) + 0.1 * qd
     assert rel_err(system.inverse_dynamics([q], [qd], [qdd]), [expected]) < 1e-14, \
         'hand-written pendulum: (tol 1e-14 relative)'
+
+
+# ---------------------------------------------------------------------- kinematics
+def random_arms(rng: np.random.Generator, n: int) -> list[TwoLinkArm]:
+    """Arms with random link lengths (l1 > l2, l1 < l2 and nearly equal all occur)."""
+    return [TwoLinkArm(link_lengths=tuple(rng.uniform(0.2, 2.0, 2))) for _ in range(n)]
+
+
+def test_inverse_kinematics_round_trips_with_forward_kinematics_on_both_elbows():
+    rng = np.random.default_rng(41)
+    for arm in random_arms(rng, 20):
+        reach = sum(arm.link_lengths)
+        # 1000 random states per arm, either branch, |sin q2| >= 1e-3 (off the singularity).
+        q = np.stack([rng.uniform(-np.pi, np.pi, 1000),
+                      rng.choice([-1.0, 1.0], 1000) * rng.uniform(1e-3, np.pi - 1e-3, 1000)],
+                     -1)
+        q[:, 1] = np.where(np.abs(np.sin(q[:, 1])) < 1e-3, 0.5, q[:, 1])
+        p = arm.forward_kinematics(q)
+        for elbow, rows in (('down', q[:, 1] > 0), ('up', q[:, 1] < 0)):
+            back = arm.inverse_kinematics(p[rows], elbow)
+            assert np.abs(arm.forward_kinematics(back) - p[rows]).max() < 1e-12 * reach, \
+                f'FK(IK(p)) = p to 1e-12 x reach ({elbow})'
+            # Recovering q loses ~eps / |sin q2| near the singularity: 1e-9 rad at 1e-3.
+            turns = np.angle(np.exp(1j * (back - q[rows])))
+            assert np.abs(turns).max() < 1e-9, f'IK(FK(q)) = q mod 2 pi to 1e-9 rad ({elbow})'
+            assert (arm.elbow_of(back) == elbow).all() and (
+                np.sign(back[:, 1]) == (1.0 if elbow == 'down' else -1.0)).all(), \
+                "branch convention: 'down' is q2 > 0"
+            assert (np.abs(back[:, 0]) <= np.pi).all(), 'q1 in (-pi, pi]'
+            one = arm.inverse_kinematics(p[rows][0], elbow)
+            assert one.shape == (2,) and np.array_equal(one, back[0]), 'single = batch row'
+
+
+def test_inverse_kinematics_on_the_boundary_and_clipping_outside():
+    arm = TwoLinkArm()  # l = (1.0, 0.8)
+    for elbow in ('up', 'down'):
+        assert np.abs(arm.inverse_kinematics((1.8, 0.0), elbow)).max() < 1e-7, 'stretched'
+        assert arm.inverse_kinematics((0.2, 0.0), elbow)[1] == pytest.approx(
+            np.pi if elbow == 'down' else -np.pi), 'folded'
+        # Outside the annulus: the boundary point in the same direction.
+        q = arm.inverse_kinematics((0.0, 3.0), elbow)
+        assert np.allclose(arm.forward_kinematics(q), (0.0, 1.8), atol=1e-7)
+    assert arm.elbow_of(np.array([[0.0, 0.5], [0.0, -0.5], [0.0, 0.0]])).tolist() == [
+        'down', 'up', 'down'], 'sin q2 = 0 counts as down'
+    with pytest.raises(ValueError, match='elbow'):
+        arm.inverse_kinematics((1.0, 0.5), 'keep')
+
+
+def test_jdot_qd_is_the_time_derivative_of_the_jacobian_along_a_motion():
+    rng = np.random.default_rng(42)
+    h = 1e-5  # s: central differences, truncation ~ h^2 |J'''| ~ 1e-9 here
+    for arm in random_arms(rng, 20):
+        q0, v, a = (rng.uniform(-3.0, 3.0, (50, 2)) for _ in range(3))
+
+        def q_of(t):  # a smooth motion through q0 with q' = v, q'' = a at t = 0
+            return q0 + v * np.sin(t) + 0.5 * a * t * t
+
+        def qd_of(t):
+            return v * np.cos(t) + a * t
+
+        # d/dt (J(q(t)) q'(t)) = J q'' + J' q': the Jacobian differentiated numerically.
+        jqd = [np.einsum('kij,kj->ki', arm.jacobian(q_of(t)), qd_of(t)) for t in (-h, h)]
+        expected = (jqd[1] - jqd[0]) / (2 * h) - np.einsum('kij,kj->ki', arm.jacobian(q0), a)
+        scale = sum(arm.link_lengths) * (1.0 + (np.abs(v).sum(-1) ** 2).max())
+        assert np.abs(arm.jdot_qd(q0, v) - expected).max() < 1e-8 * scale, \
+            "J' q' vs d/dt(J q') - J q'' by central differences (1e-8 relative)"
+        # And the tip acceleration: p'' = J q'' + J' q' against FK's second difference.
+        hp = 1e-4
+        pdd = (arm.forward_kinematics(q_of(hp)) - 2 * arm.forward_kinematics(q0)
+               + arm.forward_kinematics(q_of(-hp))) / hp**2
+        model = np.einsum('kij,kj->ki', arm.jacobian(q0), a) + arm.jdot_qd(q0, v)
+        assert np.abs(model - pdd).max() < 1e-5 * scale, "p'' = J q'' + J' q' (FK, 1e-5)"
+    assert TwoLinkArm().jdot_qd(np.zeros((3, 4, 2)), np.ones(2)).shape == (3, 4, 2)
+
+
+# By hand, l = (1.0, 0.8): cos q2 = (r^2 - 1.64) / 1.6, e.g. r = 1.785: 0.9664, |sin q2| =
+# 0.2571.
+@pytest.mark.parametrize('p, margins, pattern', [
+    ((3.0, 0.0), (0.01, 0.1),
+     r'^goal \(3\.0000, 0\.0000\) m is out of reach: r = 3\.0000 m > l1 \+ l2 - reach_margin '
+     r'= 1\.8000 - 0\.01 = 1\.7900 m$'),
+    ((0.1, 0.05), (0.01, 0.1),
+     r'^goal \(0\.1000, 0\.0500\) m is too close to the base: r = 0\.1118 m < \|l1 - l2\| \+ '
+     r'reach_margin = 0\.2000 \+ 0\.01 = 0\.2100 m$'),
+    ((1.785, 0.0), (0.0, 0.3),
+     r'^goal \(1\.7850, 0\.0000\) m is too near a singularity: \|sin q2\| = 0\.2571 < '
+     r'singularity_margin 0\.3 \(r = 1\.7850 m; arm almost stretched\)$'),
+    ((0.22, 0.0), (0.0, 0.3), r'too near a singularity: .* arm almost folded\)$'),
+    ((math.nan, 1.0), (0.01, 0.1), r'^goal must be two finite numbers \(x, y\) in m, got '
+                                   r'\[nan, 1\.0\]$'),
+    ((1.0, 0.5, 0.0), (0.01, 0.1), r'^goal must be two finite numbers'),
+])
+def test_workspace_violation_names_the_numbers(p, margins, pattern):
+    arm = TwoLinkArm()
+    reason = arm.workspace_violation(p, *margins, what='goal')
+    assert reason is not None and re.search(pattern, reason), reason
+
+
+def test_workspace_violation_passes_points_inside_and_on_the_margins():
+    arm = TwoLinkArm()
+    assert arm.workspace_violation((1.0, 0.5), 0.01, 0.1) is None
+    assert arm.workspace_violation((1.79, 0.0), 0.01, 0.0) is None, 'r = outer limit'
+    assert arm.workspace_violation((0.0, -0.21), 0.01, 0.0) is None, 'r = inner limit'
+    r = np.linspace(0.2, 1.8, 1001)
+    assert np.allclose(arm.abs_sin_q2(r) ** 2 + arm.cos_q2(r) ** 2, 1.0)
+    q2 = arm.inverse_kinematics(np.stack([r, 0 * r], -1), 'down')[:, 1]
+    assert np.allclose(arm.abs_sin_q2(r), np.abs(np.sin(q2)), atol=1e-12)
 
 
 # ---------------------------------------------------------------------- arguments, batching
@@ -432,6 +591,11 @@ _CHAIN2 = {'link_lengths': (1.0, 0.8), 'com_distances': (0.5, 0.4), 'link_masses
     (lambda: TwoLinkArm().coriolis_matrix(_Q, np.zeros(3)), 'qd'),
     (lambda: TwoLinkArm().step(_Q, _QD, _TAU, dt=0.0), 'dt'),
     (lambda: TwoLinkArm().energy(_Q, [_NAN, 0.0]), 'qd'),
+    (lambda: TwoLinkArm().forward_kinematics([0.0, _NAN]), 'q'),
+    (lambda: TwoLinkArm().jdot_qd(_Q, [0.0, 1.0, 2.0]), 'qd'),
+    (lambda: TwoLinkArm().inverse_kinematics([1.0, _NAN], 'up'), 'p'),
+    (lambda: TwoLinkArm().inverse_kinematics([1.0], 'up'), 'p'),
+    (lambda: TwoLinkArm().inverse_kinematics([1.0, 0.5], 'left'), 'elbow'),
     (lambda: SingleLinkGeared(gear_ratio=0.0), 'gear_ratio'),
     (lambda: SingleLinkGeared(mass=-1.0), 'mass'),
     (lambda: SingleLinkGeared().forward_dynamics(_NAN, 0.0, 0.0), 'theta_m'),
@@ -486,6 +650,8 @@ def test_batched_calls_equal_per_state_calls():
         'inverse_dynamics': arm.inverse_dynamics(q, qd, x),
         'forward_kinematics': arm.forward_kinematics(q),
         'jacobian': arm.jacobian(q),
+        'jdot_qd': arm.jdot_qd(q, qd),
+        'inverse_kinematics': arm.inverse_kinematics(x, 'up'),
         'energy': np.stack(arm.energy(q, qd), -1),
         'step': np.concatenate(arm.step(q, qd, x, 1e-3, 10), -1),
         'rnea': rnea(q, qd, x, **_CHAIN2, gravity=9.81),
@@ -500,6 +666,8 @@ def test_batched_calls_equal_per_state_calls():
             'inverse_dynamics': arm.inverse_dynamics(q[i], qd[i], x[i]),
             'forward_kinematics': arm.forward_kinematics(q[i]),
             'jacobian': arm.jacobian(q[i]),
+            'jdot_qd': arm.jdot_qd(q[i], qd[i]),
+            'inverse_kinematics': arm.inverse_kinematics(x[i], 'up'),
             'energy': np.array(arm.energy(q[i], qd[i])),
             'step': np.concatenate(arm.step(q[i], qd[i], x[i], 1e-3, 10)),
             'rnea': rnea(q[i], qd[i], x[i], **_CHAIN2, gravity=9.81),
