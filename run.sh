@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # arm_sim: the two commands of the README.
 #   ./run.sh demo   -- set up the venv (if needed) and run the demo
-#   ./run.sh test   -- set up the venv (if needed) and run ruff + the whole test suite
+#   ./run.sh test   -- set up the venv (if needed) and run ruff, mypy and the whole test suite
 #   ./run.sh bench  -- set up, add Pinocchio and MuJoCo, run bench/bench_dynamics.py
 #   ./run.sh setup  -- only set up
 # Set-up is idempotent: it reinstalls only when constraints.txt, setup.py, setup.cfg or
@@ -40,6 +40,8 @@ case "$cmd" in
     setup
     echo "[test] ruff"
     "$VENV/bin/ruff" check .
+    echo "[test] mypy"
+    "$VENV/bin/mypy"
     echo "[test] pytest"
     status=0
     "$VENV/bin/python" -m pytest "$@" || status=$?

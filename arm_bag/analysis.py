@@ -167,7 +167,7 @@ def _robot(bag: BagData, warnings: list[str], joints: int) -> tuple[str, list, l
               and all(isinstance(v, (int, float)) and v > 0 for v in value))
         if value is not None and not ok:
             warnings.append(f'arm_sim_robot {name}={value!r} unusable; using {fallback}')
-        return [float(v) for v in value] if ok else list(fallback)
+        return [float(v) for v in value] if ok and value is not None else list(fallback)
 
     lengths = get('link_lengths', ROBOT_DEFAULTS['link_lengths'])
     limits = get('effort_limits', ROBOT_DEFAULTS['effort_limits'][:joints]
@@ -355,16 +355,18 @@ def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
         else:
             warnings.append(f'segment {k}: no joint state has a matching reference')
     if seg.mode == 'regulation':
+        assert set_point is not None  # a segment has a mode only with a trajectory
         q0 = q[0]
         st = [metrics.settling_time(seg.series['t'], q[:, j], q0[j], set_point[j])
               for j in range(q.shape[1])]
         seg.settling_time = st
         moving = [s for s, j in zip(st, range(q.shape[1])) if q0[j] != set_point[j]]
         seg.settling_time_overall = (None if not moving or any(s is None for s in moving)
-                                     else max(moving))
+                                     else max(s for s in moving if s is not None))
         seg.overshoot = [metrics.overshoot(q[:, j], q0[j], set_point[j])
                          for j in range(q.shape[1])]
     if seg.mode == 'straight_line' and arm is not None:
+        assert points is not None  # straight means the points make a line
         a, b = points[0], points[-1]
         measured = np.isfinite(q).all(axis=1) & (js.stamp[sl] >= line_from)
         xy = arm.forward_kinematics(q[measured])

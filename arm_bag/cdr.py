@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -170,7 +171,7 @@ def _bulk_group(rows: np.ndarray, layout: JointStateLayout, template: np.ndarray
     for a, b in zip(edges[::2], edges[1::2]):
         ok &= (rows[:, a:b] == template[a:b]).all(axis=1)
     good = rows if ok.all() else rows[ok]
-    fields = {'sec': ('<i4', 4), 'nsec': ('<u4', 8)}
+    fields: dict[str, tuple[Any, int]] = {'sec': ('<i4', 4), 'nsec': ('<u4', 8)}
     for key, (off, n) in zip(('p', 'v', 'e'), (layout.position, layout.velocity,
                                                layout.effort)):
         if n:
@@ -207,7 +208,7 @@ def decode_joint_states_bulk(buf: np.ndarray, offsets: np.ndarray,
         idx = np.arange(len(lengths)) if len(uniq) == 1 else np.flatnonzero(lengths == length)
         first = int(offsets[idx[0]])
         try:
-            *_, layout = decode_joint_state(memoryview(buf[first:first + length]))
+            *_, layout = decode_joint_state(buf[first:first + length].data)
         except CdrError:
             singles.extend(idx.tolist())
             continue
@@ -222,7 +223,7 @@ def decode_joint_states_bulk(buf: np.ndarray, offsets: np.ndarray,
     for i in singles:
         off, n = int(offsets[i]), int(lengths[i])
         try:
-            stamp, names, p, v, e, _ = decode_joint_state(memoryview(buf[off:off + n]))
+            stamp, names, p, v, e, _ = decode_joint_state(buf[off:off + n].data)
         except CdrError:
             bad += 1
             continue

@@ -16,12 +16,15 @@ readable bag and exits 1. An existing ``output`` directory is refused (exit 2).
 
 from __future__ import annotations
 
+import functools
 import importlib
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
@@ -29,6 +32,7 @@ from rclpy.qos import (
     QoSProfile,
     ReliabilityPolicy,
 )
+from rclpy.subscription import Subscription
 
 from arm_bag.msgdefs import MessageDefinitionError, QosProfile, qos_yaml, schema_text, type_hash
 from arm_bag.writer import BagWriteError, BagWriter
@@ -127,7 +131,7 @@ class RecorderNode(Node):
         self.wanted = list(p['topics'])
         self.all_topics = '*' in self.wanted
         self.resolved = {self.resolve_topic_name(t) for t in self.wanted if t != '*'}
-        self.subs: dict[str, object] = {}
+        self.subs: dict[str, Subscription] = {}
         self.channels: dict[str, int] = {}
         self.skipped: set[str] = set()
         self.received = 0
@@ -189,7 +193,7 @@ class RecorderNode(Node):
             self._fail(exc)
             return
         self.channels[name] = ch
-        kwargs = {}
+        kwargs: dict[str, Any] = {}
         try:
             from rclpy.event_handler import SubscriptionEventCallbacks
 
@@ -198,12 +202,12 @@ class RecorderNode(Node):
             pass
         self.per_topic[name] = 0
         self.subs[name] = self.create_subscription(
-            cls, name, lambda data, ch=ch, t=name: self._on_message(ch, data, t), qos,
+            cls, name, functools.partial(self._on_message, ch, topic=name), qos,
             raw=True, **kwargs)
         self.get_logger().info(f'recording {name} [{type_name}]')
 
     # ------------------------------------------------------------------ data
-    def _on_message(self, channel: int, data: bytes, topic: str) -> None:
+    def _on_message(self, channel: int, data: bytes, *, topic: str) -> None:
         now = self.get_clock().now().nanoseconds if self.sim_clock else time.time_ns()
         self.received += 1
         self.per_topic[topic] += 1
@@ -277,8 +281,9 @@ class RecorderNode(Node):
         super().destroy_node()
 
 
-def _spin(executor, node: RecorderNode, running) -> None:
+def _spin(executor: Executor, node: Node, running: Callable[[], bool]) -> None:
     # After a write failure, linger LINGER s so /diagnostics subscribers get the report.
+    assert isinstance(node, RecorderNode)
     while running() and (node.failed is None or time.monotonic() < node.failed_at + LINGER):
         executor.spin_once(timeout_sec=0.1)
 

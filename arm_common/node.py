@@ -24,7 +24,7 @@ from rcl_interfaces.msg import (
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.srv import SetParameters
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -350,12 +350,12 @@ def print_help(prog: str, summary: str, specs: Iterable[ParamSpec]) -> None:
 
 
 #: The executor every node spins (bench/bench_loop.py swaps it to compare).
-EXECUTOR: Callable[[], object] = EventsExecutor
+EXECUTOR: Callable[[], Executor] = EventsExecutor
 
-Spin = Callable[[EventsExecutor, Node, Callable[[], bool]], None]
+Spin = Callable[[Executor, Node, Callable[[], bool]], None]
 
 
-def spin_until_stopped(executor: EventsExecutor, _node: Node,
+def spin_until_stopped(executor: Executor, _node: Node,
                        running: Callable[[], bool]) -> None:
     """The default spin: ``spin_once`` until SIGINT/SIGTERM or shutdown."""
     while running():
@@ -365,7 +365,7 @@ def spin_until_stopped(executor: EventsExecutor, _node: Node,
 def run_node(factory: Callable[[], Node | list[Node]], *, prog: str, summary: str,
              specs: Iterable[ParamSpec], args: list[str] | None = None,
              spin: Spin | None = None,
-             executor_type: Callable[[], object] | None = None) -> int:
+             executor_type: Callable[[], Executor] | None = None) -> int:
     """Jazzy-style main: init, spin until Ctrl-C / SIGTERM / shutdown, destroy, shutdown.
 
     The executor is rclpy's EventsExecutor, spun with ``spin_once``: measured in

@@ -273,9 +273,11 @@ class ControllerNode(Node):
             self._control(None)
 
     def _control(self, stamp_ns: int | None) -> None:
+        assert self.latest is not None  # called once a state has arrived
         t, q, qd = self.latest
         core = self.core
         moving = (self.active_msg is not None and core.last_time is not None
+                  and core.trajectory is not None
                   and core.last_time < core.start + core.trajectory.duration)
         step = core.update(t, q, qd)
         if step.jump:

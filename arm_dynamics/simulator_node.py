@@ -12,6 +12,7 @@ from __future__ import annotations
 import time
 
 from rclpy.node import Node
+from rclpy.timer import Timer
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -37,6 +38,7 @@ from arm_dynamics.timing import (
     STALE,
     TIMING_MODES,
     Timekeeper,
+    Window,
     parse_answer_tag,
 )
 
@@ -189,9 +191,9 @@ class SimulatorNode(Node):
         self.last_command_wall = time.monotonic_ns()
         self.pending = False  # lockstep: the current state's answer is held (paused)
         self.wait_reported: float | None = None  # wall s waited at the last wait report
-        self.window = None
+        self.window: Window | None = None
         self.windows = 0  # reporting windows closed (each ~1 s of wall time)
-        self.rt_timer = None
+        self.rt_timer: Timer | None = None
         self._make_rt_timer()
         self.create_timer(0.05, self._housekeeping, clock=steady_clock())
         on_parameter_changes(self, SIM_PARAMS, self._validate_change, self._apply_change)

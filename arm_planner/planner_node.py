@@ -122,9 +122,10 @@ PLANNER_PARAMS: tuple[ParamSpec, ...] = (
 def settings_from(params: dict[str, Any]) -> PlannerSettings:
     """The pure planner's settings from node parameter values."""
     names = [f for f in PlannerSettings.__dataclass_fields__ if f in params]
-    return PlannerSettings(**{n: (float(params[n]) if isinstance(params[n], int)
+    values: dict[str, Any] = {n: (float(params[n]) if isinstance(params[n], int)
                                   and not isinstance(params[n], bool) else params[n])
-                              for n in names})
+                              for n in names}
+    return PlannerSettings(**values)
 
 
 def _duration(seconds: float) -> Duration:

@@ -15,6 +15,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rcl_interfaces.srv import SetParameters
+from rclpy.client import Client
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
@@ -69,7 +70,7 @@ class SuiteClient:
         n.create_subscription(JointState, 'arm_controller/reference', self._on_reference,
                               1000)
         self.goal_pub = n.create_publisher(PoseStamped, 'goal_pose', 10)
-        self._clients: dict[str, object] = {}
+        self._clients: dict[str, Client] = {}
 
     def _keep_state(self, msg: JointState) -> None:
         self.states.append(msg)

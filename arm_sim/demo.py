@@ -9,6 +9,7 @@ same joint states.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import signal
@@ -88,7 +89,8 @@ class Demo:
         self.echo = echo
         self.config = config_file()
         self.arm, self.q0 = start_pose(self.config)
-        ps = tuple(float(v) for v in self.arm.forward_kinematics(self.q0))
+        x, y = (float(v) for v in self.arm.forward_kinematics(self.q0))
+        ps = (x, y)
         self.tasks = scenario(ps, fast, slow)
         self.procs: list[NodeProcess] = []
         self.results: list[TaskResult] = []
@@ -140,7 +142,7 @@ class Demo:
         needed = [('recorder', t) for t in DEFAULT_TOPICS] + [
             ('planner', 'joint_states'), ('planner', 'goal_pose')]
         for node, topic in needed:
-            c.spin_until(lambda n=node, t=topic: c.subscribed(t, n), wait,
+            c.spin_until(functools.partial(c.subscribed, topic, node), wait,
                          f'the {node} to subscribe {topic}', self._alive)
         # The simulator re-sends its first state until a command comes: start the controller
         # (and so the loop) only once the recorder has that state, so the bag has every one.
@@ -178,13 +180,18 @@ class Demo:
                 c.set_params('controller', **task.controller)
             n_traj = len(c.trajectories)
             c.publish_goal(*task.goal)
-            c.spin_until(lambda n=n_traj: len(c.trajectories) > n or self._refusal(c), wait,
-                         'the plan', self._alive)
+            def planned(n: int = n_traj) -> bool:
+                return len(c.trajectories) > n or bool(self._refusal(c))
+
+            c.spin_until(planned, wait, 'the plan', self._alive)
             refusal = self._refusal(c)
             if refusal:
                 raise SuiteError(f'task {k} ({task.label}): planner refused: {refusal}')
             accepted += 1
-            c.spin_until(lambda a=accepted: self._accepted(c) >= a, wait,
+            def confirmed(a: int = accepted) -> bool:
+                return self._accepted(c) >= a
+
+            c.spin_until(confirmed, wait,
                          'the controller to accept the trajectory', self._alive)
             pts = c.trajectories[-1].points
             dur = pts[-1].time_from_start.sec + pts[-1].time_from_start.nanosec * 1e-9
