@@ -26,7 +26,8 @@ Per segment:
   segment (a tip beyond an end is measured to that end, not to the infinite line) and how
   far it went along the line past the end and before the start (overshoot).
 * torque: peak and RMS applied torque (JointState effort), saturated fraction
-  (|effort| >= effort_limit - 1e-9), energy delivered (trapezoid integral of tau . qd).
+  (|effort| >= effort_limit - 1e-9), energy delivered (trapezoid integral of tau . qd over
+  the actuated joints: a geared link's output beside its ``_motor`` entry is not counted).
 
 Times are header stamps (simulated time) relative to the segment's first joint state.
 
@@ -218,7 +219,7 @@ def analyze_data(bag: BagData) -> Report:
         warnings.append(f'{len(bag.trajectories) - len(trajs)} trajectories with other '
                         f'joint names or no points ignored')
     run = {'duration': float(t[-1]), 'samples': len(js)}
-    run.update(_torque(t, js.effort, js.velocity, limits, slice(None)))
+    run.update(_torque(t, js.effort, js.velocity, limits, slice(None), js.names))
     segments: list[Segment] = []
     if not trajs:
         warnings.append('no joint_trajectory messages: the whole run is one segment '
@@ -290,10 +291,20 @@ def _reference(bag: BagData, js: JointStates, warnings: list[str]) -> np.ndarray
     return out
 
 
-def _torque(t, effort, velocity, limits, sl) -> dict:
+def actuated(names) -> np.ndarray:
+    """Which JointState entries are driven by their own actuator: all but a geared link's
+    output ``<j>`` published beside its motor ``<j>_motor``, whose power is the motor's
+    passed through the gear (counting both would count the energy twice)."""
+    listed = set(names)
+    return np.array([f'{n}_motor' not in listed for n in names], dtype=bool)
+
+
+def _torque(t, effort, velocity, limits, sl, names) -> dict:
     stats = metrics.torque_stats(effort[sl], limits)
-    ok = np.isfinite(effort[sl]).all(axis=1) & np.isfinite(velocity[sl]).all(axis=1)
-    energy = metrics.energy_delivered(t[sl][ok], effort[sl][ok], velocity[sl][ok])
+    driven = actuated(names)
+    e, v = effort[sl][:, driven], velocity[sl][:, driven]
+    ok = np.isfinite(e).all(axis=1) & np.isfinite(v).all(axis=1)
+    energy = metrics.energy_delivered(t[sl][ok], e[ok], v[ok])
     return {'torque_peak': _list(stats['peak']), 'torque_rms': _list(stats['rms']),
             'saturated_fraction': _list(stats['saturated_fraction']), 'energy': energy}
 
@@ -320,7 +331,7 @@ def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
     ts = t[sl]
     seg = Segment(index=k, mode=None, start=float(ts[0]), duration=float(ts[-1] - ts[0]),
                   samples=len(ts))
-    seg.__dict__.update(_torque(t, js.effort, js.velocity, limits, sl))
+    seg.__dict__.update(_torque(t, js.effort, js.velocity, limits, sl, js.names))
     seg.series = {'t': ts - ts[0], 'q': q, 'effort': js.effort[sl]}
     set_point = None
     points = None

@@ -242,6 +242,25 @@ def test_ros2_control_style_bag_with_only_joint_states_gives_torque_metrics(tmp_
     assert any('joint_trajectory' in w for w in rep.warnings)
 
 
+
+def test_geared_link_energy_counts_the_motor_not_its_output_again(tmp_path):
+    """The geared model publishes the motor (u, th_m') and the link (n u', th_m'/n): the
+    link's power is the motor's passed through the gear, so energy counts the motor once."""
+    n = 50.0
+    w = BagWriter(tmp_path / 'geared')
+    from arm_bag.msgdefs import schema_text
+    ch = w.add_topic('/joint_states', 'sensor_msgs/msg/JointState',
+                     schema_text('sensor_msgs/msg/JointState'))
+    for i in range(11):  # motor at 2 rad/s under 0.5 N m for 0.1 s: 0.1 J
+        w.write(ch, encode_joint_state(i * 10_000_000, ['joint1_motor', 'joint1'],
+                                       [0.02 * i, 0.02 * i / n], [2.0, 2.0 / n],
+                                       [0.5, 0.5 * n]), 1000 + i)
+    w.close()
+    rep = analyze(tmp_path / 'geared')
+    assert rep.run['energy'] == pytest.approx(0.5 * 2.0 * 0.1, abs=1e-12)
+    assert rep.run['torque_peak'] == pytest.approx([0.5, 0.5 * n]), 'both still reported'
+
+
 def test_write_error_leaves_a_readable_bag_and_names_the_file(tmp_path):
     """ENOSPC is simulated by swapping the file object for /dev/full (the real full disk
     is tested with the recorder on a tmpfs in test_recorder.py)."""
