@@ -347,13 +347,17 @@ def test_spring_mass_simulated_period_is_two_pi_sqrt_m_over_k():
         f'spring-mass period {measured:.9f} s vs 2 pi sqrt(m/k) = {period:.9f} s (tol 1e-6)'
 
 
+def random_geared_params(rng: np.random.Generator) -> dict[str, float]:
+    """SingleLinkGeared parameters drawn across their valid ranges."""
+    return {'motor_inertia': rng.uniform(1e-4, 1e-2), 'load_inertia': rng.uniform(0.0, 2.0),
+            'motor_damping': rng.uniform(0.0, 0.1), 'load_damping': rng.uniform(0.0, 1.0),
+            'gear_ratio': rng.uniform(1.0, 100.0), 'mass': rng.uniform(0.0, 5.0),
+            'length': rng.uniform(0.0, 1.0), 'gravity': rng.uniform(0.0, 20.0)}
+
 def test_geared_link_matches_its_closed_form_and_the_lagrangian_machinery():
     rng = np.random.default_rng(13)
     for _ in range(50):
-        p = {'motor_inertia': rng.uniform(1e-4, 1e-2), 'load_inertia': rng.uniform(0.0, 2.0),
-             'motor_damping': rng.uniform(0.0, 0.1), 'load_damping': rng.uniform(0.0, 1.0),
-             'gear_ratio': rng.uniform(1.0, 100.0), 'mass': rng.uniform(0.0, 5.0),
-             'length': rng.uniform(0.0, 1.0), 'gravity': rng.uniform(0.0, 20.0)}
+        p = random_geared_params(rng)
         link, lagr = SingleLinkGeared(**p), geared_link_lagrangian(**p)
         n = p['gear_ratio']
         big_j = p['motor_inertia'] + p['load_inertia'] / n**2
@@ -401,10 +405,7 @@ def test_geared_link_small_oscillation_period_is_two_pi_sqrt_j_n_over_c():
 def test_geared_link_torque_is_what_the_link_equation_needs_at_random_states():
     rng = np.random.default_rng(14)
     for _ in range(50):
-        p = {'motor_inertia': rng.uniform(1e-4, 1e-2), 'load_inertia': rng.uniform(0.0, 2.0),
-             'motor_damping': rng.uniform(0.0, 0.1), 'load_damping': rng.uniform(0.0, 1.0),
-             'gear_ratio': rng.uniform(1.0, 100.0), 'mass': rng.uniform(0.0, 5.0),
-             'length': rng.uniform(0.0, 1.0), 'gravity': rng.uniform(0.0, 20.0)}
+        p = random_geared_params(rng)
         link, n = SingleLinkGeared(**p), p['gear_ratio']
         th, thd, u = rng.uniform(-100.0, 100.0), *rng.uniform(-50.0, 50.0, 2)
         acc = link.forward_dynamics(th, thd, u)  # motor side; the link's is acc / n
