@@ -67,13 +67,15 @@ profile (regulation_profile). mode straight_line: the end effector moves on the 
 from where it is to the goal. The predicted joint torques (inverse dynamics of the robot
 parameters) are checked against effort_limits: too fast a plan is slowed down to the
 fastest duration that fits (feasibility stretch) or refused (feasibility refuse).
-Unreachable or near-singular goals, goals in another frame, non-finite goals and goals
-before any joint state are refused on /diagnostics (one status per kind, e.g. "planner:
-goal_refused"); nothing is published for them. When
+Unreachable or near-singular goals, goals in another frame and non-finite goals are
+refused on /diagnostics (one status per kind, e.g. "planner: goal_refused"); nothing is
+published for them. A goal that comes before any joint state is held (waiting_for_state)
+and planned from the first one; with none within 5 s (wall) it is refused
+(goal_before_state). When
 simulated time goes back or jumps during a planned motion (a restarted simulator, a reset),
 the controller drops the motion, says so on arm_controller/trajectory_status with the state
 it now holds, and the planner plans the goal again from that state (event replanned). A
-trajectory is re-sent (up to 5 times, 1 s apart, planned again from the latest state)
+trajectory is re-sent (up to 10 times, 1 s apart, planned again from the latest state)
 until the controller confirms it on arm_controller/trajectory_status; a refusal there, or
 no confirmation, is reported as goal_refused_by_controller or goal_unsent.
 '''
@@ -171,6 +173,7 @@ def path_message(plan: Plan, frame: str, stamp) -> Path:
 
 
 CONTROLLER_WAIT = 5.0  # s (wall): how long a plan waits for a controller to subscribe
+STATE_WAIT = 5.0  # s (wall): how long a goal waits for the first joint state
 CONFIRM_WAIT = 1.0  # s (wall): re-send a trajectory no controller confirmed after this
 SENDS = 10  # at most this many sends of one trajectory (10 s: a controller restarted on
 # a loaded machine took over 5 s to start and confirm)
@@ -211,6 +214,8 @@ class PlannerNode(Node):
                                 else self.t_ns * 1e-9)
         self.diag.set('OK', 'waiting for joint_states', plans=0)
         self.pending: tuple | None = None  # (plan, wall deadline) awaiting a controller
+        # A goal that came before the first joint state, and its wall deadline.
+        self.held_goal: tuple[tuple[float, float], float] | None = None
         self.create_timer(0.02, self._send_pending, clock=steady_clock())
         on_parameter_changes(self, PLANNER_PARAMS, self._validate_change, self._apply_change)
         self.get_logger().info(f"planner ready: mode {p['mode']}, effort limits "
@@ -262,6 +267,9 @@ class PlannerNode(Node):
                 self.diag.set('OK', 'ready: waiting for goal_pose')
             self.q, self.qd = q, qd
             self.t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            if self.held_goal is not None:  # a goal waited for this first state
+                goal, self.held_goal = self.held_goal[0], None
+                self._plan(goal, sends=0)
         except Exception as exc:  # never die on a message
             self.diag.problem('internal_error', f'joint_states handling failed: {exc!r}',
                               'ERROR')
@@ -285,11 +293,14 @@ class PlannerNode(Node):
             self.diag.problem('goal_not_finite', f'goal_pose refused: non-finite position '
                               f'(x, y) = {goal.tolist()}', goal_x=goal[0], goal_y=goal[1])
             return
-        if self.q is None:
-            self.diag.problem('goal_before_state', 'goal_pose refused: no joint_states received '
-                              'yet, so the start of the motion is unknown')
+        target = (float(goal[0]), float(goal[1]))
+        if self.q is None:  # e.g. sent right after start-up: plan it from the first state
+            self.held_goal = (target, time.monotonic() + STATE_WAIT)
+            self.diag.problem('waiting_for_state', 'goal_pose held: no joint_states received '
+                              f'yet; planned from the first one (refused after {STATE_WAIT:g} '
+                              's without)', goal_x=target[0], goal_y=target[1])
             return
-        self._plan((float(goal[0]), float(goal[1])), sends=0)
+        self._plan(target, sends=0)
 
     def _plan(self, goal: tuple[float, float], sends: int,
               start: tuple[np.ndarray, int] | None = None) -> None:
@@ -390,6 +401,11 @@ class PlannerNode(Node):
         """Publish the pending plan once a controller is matched: a trajectory published
         before the controller's subscription matches is lost (volatile QoS)."""
         self._confirm_sent()
+        if self.held_goal is not None and time.monotonic() > self.held_goal[1]:
+            goal, self.held_goal = self.held_goal[0], None
+            self.diag.problem('goal_before_state', 'goal_pose refused: no joint_states received '
+                              f'in {STATE_WAIT:g} s, so the start of the motion is unknown',
+                              goal_x=goal[0], goal_y=goal[1])
         if self.pending is None:
             return
         plan, deadline, start_ns, goal, sends = self.pending

@@ -162,12 +162,12 @@ def test_refused_goals_publish_nothing_and_are_reported(ros, launch, joint_feed)
     def refused(msg: PoseStamped, kind: str, words: str) -> None:
         diags.clear()
         goals.publish(msg)
-        ros.wait_for(lambda: any(words in t for t in diag_texts(diags, kind)), 10,
+        ros.wait_for(lambda: any(words in t for t in diag_texts(diags, kind)), 20,
                      f'{kind} report')
         spin_for(ros, 0.2)
         assert not trajs and not paths, f'nothing published for a {kind} goal'
 
-    refused(goal_msg(0.5, 1.0), 'goal_before_state', 'no joint_states received yet')
+    refused(goal_msg(0.5, 1.0), 'goal_before_state', 'no joint_states received in 5 s')
     joint_feed['q'] = Q0
     wait_ready(ros, diags)
     refused(goal_msg(math.nan, 1.0), 'goal_not_finite', '[nan, 1.0]')
@@ -188,6 +188,24 @@ def test_refused_goals_publish_nothing_and_are_reported(ros, launch, joint_feed)
     ros.wait_for(lambda: trajs, 10, 'a plan for a good goal')
     assert len(trajs[0].points) == 1, 'default regulation profile: a set point'
     assert np.abs(last_point_fk(trajs[0]) - [0.5, 1.0]).max() < 1e-9
+
+
+
+def test_a_goal_sent_before_the_first_joint_state_is_planned_from_it(ros, launch,
+                                                                     joint_feed):
+    """Right after start-up the planner may have no joint state yet: the goal is held
+    (reported) and planned from the first state, not refused."""
+    launch('planner')
+    trajs = ros.collect(JointTrajectory, TRAJECTORY)
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    goals = connect(ros, diags)
+    goals.publish(goal_msg(0.5, 1.0))
+    ros.wait_for(lambda: diag_texts(diags, 'waiting_for_state'), 10, 'the goal held')
+    assert not trajs, 'nothing planned without a state'
+    joint_feed['q'] = Q0
+    ros.wait_for(lambda: trajs, 10, 'the plan from the first state')
+    assert np.abs(last_point_fk(trajs[0]) - [0.5, 1.0]).max() < 1e-9
+    assert not diag_texts(diags, 'goal_before_state'), 'not refused as well'
 
 
 def test_a_display_started_after_the_plan_still_gets_its_path(ros, launch, joint_feed):
