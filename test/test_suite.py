@@ -7,7 +7,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import NewRun, events, statuses, values
+from conftest import NewRun, count, events, statuses, values
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
@@ -112,8 +112,15 @@ def test_a_line_goal_while_moving_fast_stops_first_then_keeps_the_same_bound(ros
                           joint_max_acceleration=20.0)[0].successful
     pause = ros.pause_simulator_now(diags)
     n = len(trajs)
+
+    def accepted() -> int:
+        return count(diags, '/controller', 'trajectory_accepted')
+
+    k = accepted()
     goals.publish(goal(-0.9, 1.2))
     ros.wait_for(lambda: len(trajs) > n, what='the fast move')
+    # Time moves on only once the controller has the move (under load it can come late).
+    ros.wait_for(lambda: accepted() > k, what='the controller to accept the fast move')
     end = trajs[-1].points[-1].time_from_start
     middle = pause + 0.5 * (end.sec + end.nanosec * 1e-9)
     assert ros.set_params('/simulator', pause_at=middle)[0].successful
@@ -124,9 +131,10 @@ def test_a_line_goal_while_moving_fast_stops_first_then_keeps_the_same_bound(ros
     # s from 3.8 rad/s), then a hold while the tracking settles, then the line. (At the
     # shipped 3 rad/s^2 the shoulder would pass its limit: refused, rightly.)
     assert ros.set_params('/planner', mode='straight_line')[0].successful
-    n, m = len(trajs), len(paths)
+    n, m, k = len(trajs), len(paths), accepted()
     goals.publish(goal(*PF))
     ros.wait_for(lambda: len(trajs) > n and len(paths) > m, what='the line plan')
+    ros.wait_for(lambda: accepted() > k, what='the controller to accept the line')
     line = trajs[-1]
     assert np.abs(line.points[0].velocities).max() >= 2.0, 'planned from the velocity'
     path = paths[-1]
