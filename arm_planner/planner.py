@@ -253,9 +253,10 @@ def plan_goal(arm: TwoLinkArm, effort_limits, q_current, goal,
                                 f'({rest.duration:.4g} s) together are longer than '
                                 f'{MAX_DURATION:g} s, the longest plan')
         return _after_stop(arm, effort_limits, stop, rest)
-    common: dict[str, Any] = dict(elbow=s.elbow, time_scaling=s.time_scaling, duration=s.duration,
-                  feasibility=s.feasibility, reach_margin=s.reach_margin,
-                  singularity_margin=s.singularity_margin, joint_limits=joint_limits)
+    common: dict[str, Any] = dict(
+        elbow=s.elbow, time_scaling=s.time_scaling, duration=s.duration,
+        feasibility=s.feasibility, reach_margin=s.reach_margin,
+        singularity_margin=s.singularity_margin, joint_limits=joint_limits)
     if s.mode == 'regulation':
         return plan_regulation(arm, effort_limits, q_current, goal,
                                profile=s.regulation_profile,
