@@ -1,7 +1,9 @@
-"""``arm-sim analyze BAG...``: metrics of recorded runs (thin CLI over arm_bag.analysis).
+"""``arm-sim analyze BAG...``: metrics of recorded runs (thin CLI over arm_bag.analysis);
+``arm-sim bag recover BAG``: make a damaged or unfinished bag complete (arm_bag.recover).
 
-Exit codes: 0 every bag analysed; 2 usage error; 3 a bag holds nothing analysable (no
-joint states); 4 a path is not a bag or is unreadable. Errors are one line on stderr;
+Exit codes: 0 every bag analysed / a complete bag written; 2 usage error; 3 a bag holds
+nothing analysable (no joint states); 4 a path is not a bag, is unreadable or damaged
+(``analyze``), or holds nothing recoverable (``bag recover``). Errors are one line on stderr;
 warnings (truncated bag, no metadata, default robot parameters, ...) are printed as
 ``warning: ...`` lines on stderr and never change the exit code.
 """
@@ -74,10 +76,56 @@ def run_analyze(args: argparse.Namespace) -> int:
     return code
 
 
+def add_bag_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``bag`` command group (``bag recover``) to an argparse ``subparsers``."""
+    p = subparsers.add_parser('bag', help='bag maintenance: recover a damaged or unfinished '
+                              'bag', description='Bag maintenance commands.')
+    group = p.add_subparsers(dest='bag_command', required=True, metavar='BAG_COMMAND')
+    rec = group.add_parser(
+        'recover', help='make a damaged or unfinished bag complete again',
+        description='Read the MCAP file(s) of a bag record by record, like `mcap recover` '
+        'and `ros2 bag reindex`: keep every schema, channel and metadata record and every '
+        'chunk whose CRC and decompression check out; drop damaged or incomplete chunks '
+        '(a recorder killed mid-chunk, a full disk, flipped bytes) and stop where the file '
+        'is cut. Writes a complete MCAP file (CRCs on, the compression found) atomically '
+        'over the original (files that are already intact are left alone) or into '
+        '--output, and rewrites metadata.yaml (per-topic counts, start and duration [ns], '
+        'recording marker closed). Prints one summary line (messages kept, chunks and '
+        'messages dropped and why, bytes cut at the end [bytes]) and the messages kept '
+        'per topic. Exit codes: 0 a complete bag was written, 4 nothing recoverable (not '
+        'MCAP, no intact message) or the bag is still being recorded.')
+    rec.add_argument('bag', metavar='DIR_OR_MCAP', help='bag directory or .mcap file')
+    rec.add_argument('--output', metavar='DIR', default=None,
+                     help='write the recovered bag to this new (or empty) directory instead '
+                     'of replacing the damaged files in place')
+    rec.set_defaults(func=run_recover)
+    return p
+
+
+def run_recover(args: argparse.Namespace) -> int:
+    """Run ``bag recover``; returns the exit code (never raises for bad input)."""
+    from arm_bag.recover import RecoveryError, recover_bag
+
+    try:
+        report = recover_bag(args.bag, args.output)
+    except RecoveryError as exc:
+        print(f'arm-sim bag recover: {exc}', file=sys.stderr)
+        return EXIT_UNREADABLE
+    except (OSError, MemoryError) as exc:
+        print(f'arm-sim bag recover: {args.bag}: {exc}', file=sys.stderr)
+        return EXIT_UNREADABLE
+    written = ', '.join(report.files) or 'nothing rewritten (already intact)'
+    print(f'{report.output}: {report.summary()}; written: {written}')
+    for topic, n in sorted(report.topics.items()):
+        print(f'  {topic}: {n} messages')
+    return EXIT_OK
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='arm-sim')
     sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
     add_analyze_parser(sub)
+    add_bag_parser(sub)
     args = parser.parse_args(argv)
     return args.func(args)
 

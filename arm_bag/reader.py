@@ -5,21 +5,48 @@ directly: chunks are decompressed (zstd, lz4) and the message offsets come from 
 message-index records that follow each chunk, so messages are located with numpy instead of
 one Python object per message. JointState messages are decoded in bulk
 (:func:`arm_bag.cdr.decode_joint_states_bulk`); the few trajectory, path and goal messages
-one by one. A truncated file (a killed recorder, a full disk) is read up to its last
-complete chunk, which is scanned record by record; a file without footer, summary or
-``metadata.yaml`` is fine. Problems that still allow analysis are listed in
-``BagData.warnings``; a file that cannot be read raises :class:`BagError`.
-"""
+one by one.
 
+Integrity: everything the format lets a reader check is checked (magic at both ends,
+record lengths, chunk sizes, decompression, chunk CRCs, the data-section and summary CRCs
+when set, message indexes against their message records); any damage raises
+:class:`BagError` naming the file, the byte offset and what is wrong, ending with the
+``arm-sim bag recover`` hint. There are no silent partial reads, with two exceptions that
+follow the recording marker (:mod:`arm_bag.bagfile`): a bag marked ``open`` whose file a
+recorder still locks is read up to its last complete record (a warning says so, the file
+is not touched), and one whose recorder died is recovered in place first
+(:func:`arm_bag.recover.recover_bag`, one warning). A file without ``metadata.yaml`` is
+fine. Problems that still allow analysis are listed in ``BagData.warnings``.
+"""
 from __future__ import annotations
 
 import json
 import struct
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from arm_bag.bagfile import (
+    LOST_KEY,
+    MAGIC,
+    OP_CHANNEL,
+    OP_CHUNK,
+    OP_CHUNK_INDEX,
+    OP_DATA_END,
+    OP_FOOTER,
+    OP_HEADER,
+    OP_MESSAGE,
+    OP_MESSAGE_INDEX,
+    OP_METADATA,
+    OP_SCHEMA,
+    RECORDING_OPEN,
+    BagError,
+    is_locked,
+    recording_state,
+    recover_hint,
+)
 from arm_bag.cdr import (
     CdrError,
     JointTrajectoryMsg,
@@ -28,16 +55,6 @@ from arm_bag.cdr import (
     decode_path,
     decode_pose_stamped,
 )
-from arm_bag.writer import (
-    MAGIC,
-    OP_CHANNEL,
-    OP_CHUNK,
-    OP_FOOTER,
-    OP_MESSAGE,
-    OP_MESSAGE_INDEX,
-    OP_METADATA,
-    OP_SCHEMA,
-)
 
 JOINT_STATE = 'sensor_msgs/msg/JointState'
 TRAJECTORY = 'trajectory_msgs/msg/JointTrajectory'
@@ -45,10 +62,6 @@ PATH = 'nav_msgs/msg/Path'
 POSE_STAMPED = 'geometry_msgs/msg/PoseStamped'
 ROBOT_RECORD = 'arm_sim_robot'
 _U16, _U32, _U64 = struct.Struct('<H'), struct.Struct('<I'), struct.Struct('<Q')
-
-
-class BagError(Exception):
-    """The path is not a readable bag (the message names the path and the reason)."""
 
 
 @dataclass
@@ -115,9 +128,19 @@ class BagData:
     warnings: list[str] = field(default_factory=list)
     truncated: bool = False
     message_count: int = 0
+    lost: dict[str, int] = field(default_factory=dict)  # topic -> lost before the recorder
 
 
 # ---------------------------------------------------------------------- MCAP scanning
+class _Damage(Exception):
+    """A record is damaged: ``offset`` [byte] in the file and what is wrong."""
+
+    def __init__(self, offset: int, what: str) -> None:
+        super().__init__(what)
+        self.offset = offset
+        self.what = what
+
+
 @dataclass
 class _Channel:
     id: int
@@ -131,17 +154,59 @@ class _Chunk:
     piece: int             # 0: offsets into the file, 1: into the decompressed arena
     base: int              # where the chunk's records start in that piece
     size: int              # bytes of records
+    at: int = 0            # file offset of the chunk record
     indexes: dict[int, np.ndarray] = field(default_factory=dict)  # channel -> (N, 2) u8
     scan: bool = False     # no (trustworthy) message index: walk the records
 
 
-class _Scan:
-    """All records of one MCAP file; messages located as (piece, offset) pairs."""
+def _str_at(data, p: int, limit: int) -> tuple[str, int]:
+    """The length-prefixed UTF-8 string at ``p`` of a record ending at ``limit``."""
+    if p + 4 > limit:
+        raise _Damage(p, 'a string length runs past the end of its record')
+    n = _U32.unpack_from(data, p)[0]
+    if p + 4 + n > limit:
+        raise _Damage(p, f'a string of {n} bytes runs past the end of its record')
+    try:
+        return bytes(data[p + 4:p + 4 + n]).decode(), p + 4 + n
+    except UnicodeDecodeError:
+        raise _Damage(p, 'a string is not valid UTF-8') from None
 
-    def __init__(self, data: bytes, name: str) -> None:
-        if data[:8] != MAGIC:
-            raise BagError(f'{name}: not an MCAP file (bad magic)')
+
+def _map_at(data, p: int, limit: int) -> tuple[dict[str, str], int]:
+    """The length-prefixed string -> string map at ``p`` of a record ending at ``limit``."""
+    if p + 4 > limit:
+        raise _Damage(p, 'a map length runs past the end of its record')
+    stop = p + 4 + _U32.unpack_from(data, p)[0]
+    if stop > limit:
+        raise _Damage(p, f'a map of {stop - p - 4} bytes runs past the end of its record')
+    p += 4
+    values = {}
+    while p < stop:
+        k, p = _str_at(data, p, stop)
+        v, p = _str_at(data, p, stop)
+        values[k] = v
+    return values, p
+
+
+class _Scan:
+    """All records of one MCAP file, checked; messages located as (piece, offset) pairs.
+
+    ``live``: the file is still being written (a recorder holds its lock): read up to the
+    last complete record instead of requiring the footer; damage in complete records is
+    still an error. Otherwise every check the format allows is made (magic at both ends,
+    record lengths, chunk sizes, CRCs and decompression, data-section and summary CRCs,
+    message indexes against the message records) and any damage raises :class:`BagError`
+    naming the file, the byte offset and what is wrong.
+    """
+
+    def __init__(self, data: bytes, name: str, live: bool = False,
+                 hint: str | None = None) -> None:
         self.name = name
+        self.hint = hint or name
+        if len(data) < 8 or data[:8] != MAGIC:
+            if len(data) >= 16 and data[-8:] == MAGIC:  # an MCAP file with a damaged start
+                raise self.error(0, 'bad MCAP magic at the start of the file')
+            raise BagError(f'{name}: not an MCAP file (no MCAP magic at byte 0)')
         self.file = np.frombuffer(data, np.uint8)
         self.channels: dict[int, _Channel] = {}
         self.schemas: dict[int, str] = {}
@@ -149,156 +214,300 @@ class _Scan:
         self.chunks: list[_Chunk] = []
         self.loose: list[int] = []  # file offsets of top-level message records
         self.truncated = False
+        self.end = 8  # file offset after the last record read
         self.warnings: list[str] = []
         self._decompressed: list[bytes] = []
-        self._walk(data)
+        try:
+            self._walk(data, live)
+        except _Damage as exc:
+            raise self.error(exc.offset, exc.what) from None
         self.arena = (np.frombuffer(b''.join(self._decompressed), np.uint8)
                       if self._decompressed else np.zeros(0, np.uint8))
         self.pieces = (self.file, self.arena)
+        self.located = self._locate()
 
-    def _walk(self, data: bytes) -> None:
-        pos, end = 8, len(data)
+    def error(self, offset: int, what: str) -> BagError:
+        return BagError(f'{self.name}: byte {offset}: {what}; {recover_hint(self.hint)}')
+
+    def _walk(self, data: bytes, live: bool) -> None:
+        size = len(data)
+        limit = size  # where the data section must end
+        footer = None
+        if not live:
+            footer = size - 8 - 29
+            if size < 8 + 9 + 29 + 8 or data[-8:] != MAGIC:
+                raise _Damage(size, f'no MCAP magic at the end of the {size}-byte file: it '
+                              'is cut or was never finished')
+            if data[footer] != OP_FOOTER or _U64.unpack_from(data, footer + 1)[0] != 20:
+                raise _Damage(footer, 'no footer record before the closing magic')
+            sum_start, sum_offsets, sum_crc = struct.unpack_from('<QQI', data, footer + 9)
+            if sum_start and not 8 < sum_start <= footer:
+                raise _Damage(footer + 9, f'the footer puts the summary at byte {sum_start}, '
+                              'outside the file')
+            if sum_offsets and not sum_start <= sum_offsets <= footer:
+                raise _Damage(footer + 17, f'the footer puts the summary offsets at byte '
+                              f'{sum_offsets}, outside the summary')
+            if sum_crc and sum_start and zlib.crc32(data[sum_start:footer + 25]) != sum_crc:
+                raise _Damage(sum_start, f'summary CRC mismatch over bytes {sum_start} to '
+                              f'{footer + 25} (stored {sum_crc:#010x})')
+            limit = sum_start or footer
+        pos = 8
         last_chunk: _Chunk | None = None
         arena_size = 0
-        while True:
-            if pos + 9 > end:
-                self.truncated = True
-                break
+        data_end = None
+        while pos < limit:
+            if pos + 9 > limit:
+                if live:
+                    self.truncated = True
+                    break
+                raise _Damage(pos, f'a record header is cut by the end of the data section '
+                              f'at byte {limit}')
             op, length = data[pos], _U64.unpack_from(data, pos + 1)[0]
             body = pos + 9
-            if body + length > end:
-                self.truncated = True
-                break
-            try:
-                if op == OP_CHUNK:
-                    last_chunk = self._chunk(data, body, length, arena_size)
-                    if last_chunk.piece == 1:
-                        arena_size += last_chunk.size
-                    self.chunks.append(last_chunk)
-                elif op == OP_MESSAGE_INDEX and last_chunk is not None:
-                    ch = _U16.unpack_from(data, body)[0]
-                    n = _U32.unpack_from(data, body + 2)[0]
-                    last_chunk.indexes[ch] = np.frombuffer(data, '<u8', n // 8,
-                                                           body + 6).reshape(-1, 2)
-                elif op == OP_MESSAGE:
+            end = body + length
+            if end > limit:
+                if live:
+                    self.truncated = True
+                    break
+                raise _Damage(pos, f'a record (opcode {op}) of {length} bytes runs past the '
+                              f'end of the data section at byte {limit}')
+            if pos == 8 and op != OP_HEADER:
+                raise _Damage(pos, f'the first record has opcode {op}, not a header')
+            if op == OP_CHUNK:
+                last_chunk = self._chunk(data, pos, body, end, arena_size)
+                if last_chunk.piece == 1:
+                    arena_size += last_chunk.size
+                self.chunks.append(last_chunk)
+            elif op == OP_MESSAGE_INDEX:
+                if last_chunk is None:
+                    raise _Damage(pos, 'a message index that does not follow a chunk')
+                if length < 6:
+                    raise _Damage(pos, f'a message index record of only {length} bytes')
+                ch, n = struct.unpack_from('<HI', data, body)
+                if n % 16 or 6 + n > length:
+                    raise _Damage(pos, f'a message index of {n} bytes does not fit its record')
+                if ch in last_chunk.indexes:
+                    raise _Damage(pos, f'a second message index for channel {ch}')
+                last_chunk.indexes[ch] = np.frombuffer(data, '<u8', n // 8,
+                                                       body + 6).reshape(-1, 2)
+            else:
+                last_chunk = None
+                if op == OP_MESSAGE:
+                    if length < 22:
+                        raise _Damage(pos, f'a message record of only {length} bytes')
                     self.loose.append(pos)
+                elif op == OP_DATA_END:
+                    if length < 4:
+                        raise _Damage(pos, f'a data end record of only {length} bytes')
+                    data_end = pos
+                    pos = end
+                    break
+                elif op == OP_FOOTER:
+                    raise _Damage(pos, 'a footer record inside the data section')
                 else:
-                    self._other(op, data, body)
-            except (struct.error, ValueError, IndexError, UnicodeDecodeError) as exc:
-                self.warnings.append(f'{self.name}: bad record (opcode {op}) at byte {pos}: '
-                                     f'{exc}; stopped reading there')
-                self.truncated = True
-                break
-            if op == OP_FOOTER:
-                break
-            pos = body + length
-        if self.truncated:
-            if self.chunks:
+                    self._other(op, data, body, end)
+            pos = end
+        self.end = pos
+        if live:
+            if self.chunks:  # its message indexes may not all be written yet
                 self.chunks[-1].scan = True
-            if not any('bad record' in w for w in self.warnings):
-                self.warnings.append(f'{self.name}: file is truncated at byte {pos} (no '
-                                     'footer): read up to the last complete record')
+            return
+        if data_end is None or pos != limit:
+            raise _Damage(pos, 'the data section does not end with a data end record where '
+                          'the footer says the summary starts')
+        crc = _U32.unpack_from(data, data_end + 9)[0]
+        if crc and zlib.crc32(data[:data_end]) != crc:
+            raise _Damage(data_end, f'data section CRC mismatch over bytes 0 to {data_end} '
+                          f'(stored {crc:#010x})')
+        assert footer is not None
+        self._summary(data, limit, footer)
 
-    def _chunk(self, data: bytes, body: int, length: int, arena_size: int) -> _Chunk:
-        _start, _end, usize, _crc = struct.unpack_from('<QQQI', data, body)
-        p = body + 28
-        clen = _U32.unpack_from(data, p)[0]
-        compression = bytes(data[p + 4:p + 4 + clen]).decode()
-        p += 4 + clen
+    def _summary(self, data: bytes, start: int, footer: int) -> None:
+        """Check the framing of the summary section (``start`` to ``footer``) and read its
+        schemas and channels; chunk indexes must point at chunks of the data section."""
+        starts = {c.at for c in self.chunks}
+        pos = start
+        while pos < footer:
+            if pos + 9 > footer:
+                raise _Damage(pos, 'a summary record header runs into the footer')
+            op, length = data[pos], _U64.unpack_from(data, pos + 1)[0]
+            end = pos + 9 + length
+            if end > footer:
+                raise _Damage(pos, f'a summary record (opcode {op}) of {length} bytes runs '
+                              'into the footer')
+            if op in (OP_SCHEMA, OP_CHANNEL):
+                self._other(op, data, pos + 9, end)
+            elif op == OP_CHUNK_INDEX:
+                if length < 32:
+                    raise _Damage(pos, f'a chunk index record of only {length} bytes')
+                at = _U64.unpack_from(data, pos + 9 + 16)[0]
+                if at not in starts:
+                    raise _Damage(pos, f'a chunk index points at byte {at}, where no chunk '
+                                  'starts')
+            elif op in (OP_MESSAGE, OP_CHUNK, OP_MESSAGE_INDEX, OP_HEADER, OP_FOOTER,
+                        OP_DATA_END):
+                raise _Damage(pos, f'a record with opcode {op} inside the summary')
+            pos = end
+
+    def _chunk(self, data: bytes, at: int, body: int, end: int, arena_size: int) -> _Chunk:
+        if end - body < 40:
+            raise _Damage(at, f'a chunk record of only {end - body} bytes')
+        _start, _end, usize, crc = struct.unpack_from('<QQQI', data, body)
+        compression, p = _str_at(data, body + 28, end)
+        if p + 8 > end:
+            raise _Damage(at, 'the chunk records length runs past the chunk record')
         rlen = _U64.unpack_from(data, p)[0]
         p += 8
-        if p + rlen > body + length:
-            raise ValueError('chunk records overrun the chunk')
-        if compression == '':
-            return _Chunk(0, p, rlen)
-        raw = data[p:p + rlen]
-        if compression == 'zstd':
-            import zstandard
+        if p + rlen != end:
+            raise _Damage(at, f'the chunk says {rlen} bytes of records, its record holds '
+                          f'{end - p}')
+        raw = data[p:end]
+        try:
+            if compression == '':
+                out = raw
+            elif compression == 'zstd':
+                import zstandard
 
-            out = zstandard.ZstdDecompressor().decompress(raw, max_output_size=usize)
-        elif compression == 'lz4':
-            import lz4.frame
+                known = zstandard.frame_content_size(raw)
+                if known not in (-1, usize):
+                    raise ValueError(f'the zstd frame says {known} bytes')
+                out = zstandard.ZstdDecompressor().decompress(raw, max_output_size=usize)
+            elif compression == 'lz4':
+                import lz4.frame
 
-            out = lz4.frame.decompress(raw)
-        else:
-            raise ValueError(f'unsupported chunk compression {compression!r}')
+                out = lz4.frame.decompress(raw)
+            else:
+                raise _Damage(at, f'unsupported chunk compression {compression!r}')
+        except _Damage:
+            raise
+        except Exception as exc:  # zstandard.ZstdError, lz4's RuntimeError, ... : damage
+            why = ' '.join(str(exc).split()) or type(exc).__name__
+            raise _Damage(at, f'{compression} chunk does not decompress: {why}') from None
         if len(out) != usize:
-            raise ValueError(f'chunk decompressed to {len(out)} bytes, expected {usize}')
+            raise _Damage(at, f'the chunk holds {len(out)} bytes of records, its header '
+                          f'says {usize}')
+        if crc and zlib.crc32(out) != crc:
+            raise _Damage(at, f'chunk CRC mismatch (stored {crc:#010x}, computed '
+                          f'{zlib.crc32(out):#010x})')
+        if compression == '':
+            return _Chunk(0, p, rlen, at)
         self._decompressed.append(out)
-        return _Chunk(1, arena_size, usize)
+        return _Chunk(1, arena_size, usize, at)
 
-    def _other(self, op: int, data: bytes, body: int) -> None:
+    def _other(self, op: int, data, body: int, end: int) -> None:
         if op == OP_SCHEMA:
+            if body + 2 > end:
+                raise _Damage(body - 9, 'a schema record too short for its id')
             sid = _U16.unpack_from(data, body)[0]
-            name, p = _read_str(data, body + 2)
-            _enc, p = _read_str(data, p)
+            name, p = _str_at(data, body + 2, end)
+            _enc, p = _str_at(data, p, end)
             self.schemas[sid] = name
         elif op == OP_CHANNEL:
+            if body + 4 > end:
+                raise _Damage(body - 9, 'a channel record too short for its ids')
             cid, sid = struct.unpack_from('<HH', data, body)
-            topic, p = _read_str(data, body + 4)
-            enc, p = _read_str(data, p)
+            topic, p = _str_at(data, body + 4, end)
+            enc, p = _str_at(data, p, end)
+            _map_at(data, p, end)
+            if sid and sid not in self.schemas:
+                raise _Damage(body - 9, f'channel {topic!r} refers to unknown schema {sid}')
             self.channels[cid] = _Channel(cid, topic, self.schemas.get(sid, ''), enc)
         elif op == OP_METADATA:
-            name, p = _read_str(data, body)
-            n = _U32.unpack_from(data, p)[0]
-            p += 4
-            stop = p + n
-            values = {}
-            while p < stop:
-                k, p = _read_str(data, p)
-                v, p = _read_str(data, p)
-                values[k] = v
-            self.metadata[name] = values
+            name, p = _str_at(data, body, end)
+            self.metadata[name], p = _map_at(data, p, end)
+        elif op == OP_HEADER:
+            _profile, p = _str_at(data, body, end)
+            _str_at(data, p, end)
 
-    def _scan_records(self, piece: int, base: int, size: int) -> dict[int, list[int]]:
-        """Walk a chunk's records: channel -> message offsets (slow path)."""
-        buf = self.pieces[piece]
-        raw = buf[base:base + size].tobytes()
-        out: dict[int, list[int]] = {}
-        pos = 0
-        while pos + 9 <= size:
+    def _records(self, chunk: _Chunk, start: int, stop: int, slow: bool,
+                 out: dict[int, list[int]]) -> None:
+        """Walk the records of ``chunk`` from ``start`` to ``stop`` (offsets in its piece):
+        schemas and channels are read; messages are collected into ``out`` when ``slow``
+        (no message index), else they are damage (a message the index does not list)."""
+        buf = self.pieces[chunk.piece]
+        raw = buf[start:stop].tobytes()
+        pos, size = 0, stop - start
+        while pos < size:
+            where = f'record at byte {pos + start - chunk.base} of the chunk records'
+            if pos + 9 > size:
+                raise _Damage(chunk.at, f'{where}: a record header is cut')
             op, length = raw[pos], _U64.unpack_from(raw, pos + 1)[0]
             if pos + 9 + length > size:
-                break
-            if op == OP_MESSAGE and length >= 22:
-                out.setdefault(_U16.unpack_from(raw, pos + 9)[0], []).append(base + pos)
-            elif op == OP_SCHEMA or op == OP_CHANNEL:
-                self._other(op, raw, pos + 9)
+                raise _Damage(chunk.at, f'{where}: {length} bytes run past the chunk')
+            if op == OP_MESSAGE:
+                if not slow:
+                    raise _Damage(chunk.at, f'{where}: a message the message index misses')
+                if length < 22:
+                    raise _Damage(chunk.at, f'{where}: a message record of {length} bytes')
+                out.setdefault(_U16.unpack_from(raw, pos + 9)[0], []).append(start + pos)
+            elif op in (OP_SCHEMA, OP_CHANNEL):
+                try:
+                    self._other(op, raw, pos + 9, pos + 9 + length)
+                except _Damage as exc:
+                    raise _Damage(chunk.at, f'{where}: {exc.what}') from None
+            elif op in (OP_CHUNK, OP_MESSAGE_INDEX, OP_FOOTER, OP_HEADER, OP_DATA_END):
+                raise _Damage(chunk.at, f'{where}: opcode {op} inside a chunk')
             pos += 9 + length
-        return out
 
-    def locate(self) -> dict[int, list[tuple[int, np.ndarray]]]:
+    def _indexed(self, chunk: _Chunk) -> dict[int, np.ndarray]:
+        """channel -> sorted message offsets of ``chunk`` from its message indexes, each
+        checked against the message record it points at; the records between messages
+        are walked (schemas, channels). Raises _Damage on any inconsistency."""
+        buf = self.pieces[chunk.piece]
+        base, size = chunk.base, chunk.size
+        found: dict[int, np.ndarray] = {}
+        for ch, idx in chunk.indexes.items():
+            if not len(idx):
+                continue
+            rel = idx[:, 1]
+            if size < 31 or (rel > size - 31).any():
+                raise _Damage(chunk.at, f'the message index of channel {ch} points past its '
+                              f'chunk of {size} bytes')
+            offs = rel.astype(np.int64) + base
+            lens = _gather_u64(buf, offs, 1)
+            if ((buf[offs] != OP_MESSAGE).any() or (lens < 22).any()
+                    or (lens > size).any() or (rel + 9 + lens > size).any()):
+                raise _Damage(chunk.at, f'the message index of channel {ch} points at '
+                              'something that is not a complete message record')
+            chans = buf[offs[:, None] + np.arange(9, 11)].copy().view('<u2')[:, 0]
+            if (chans != ch).any() or (_gather_u64(buf, offs, 15) != idx[:, 0]).any():
+                raise _Damage(chunk.at, f'the message index of channel {ch} does not match '
+                              'the channel or log time of its messages')
+            found[ch] = np.sort(offs)
+        if not found:
+            self._records(chunk, base, base + size, False, {})
+            return found
+        offs = np.sort(np.concatenate(list(found.values())))
+        ends = offs + 9 + _gather_u64(buf, offs, 1).astype(np.int64)
+        if (ends[:-1] > offs[1:]).any():
+            raise _Damage(chunk.at, 'message records listed in the message index overlap')
+        gap_start = np.r_[base, ends]
+        gap_stop = np.r_[offs, base + size]
+        for i in np.flatnonzero(gap_start != gap_stop).tolist():
+            self._records(chunk, int(gap_start[i]), int(gap_stop[i]), False, {})
+        return found
+
+    def _locate(self) -> dict[int, list[tuple[int, np.ndarray]]]:
         """channel -> [(piece, absolute record offsets)], in file order."""
         out: dict[int, list[tuple[int, np.ndarray]]] = {}
-        for chunk in self.chunks:
-            found: dict[int, np.ndarray] = {}
-            if chunk.indexes and not chunk.scan and not (set(chunk.indexes)
-                                                         - set(self.channels)):
-                buf = self.pieces[chunk.piece]
-                for ch, idx in chunk.indexes.items():
-                    offs = idx[:, 1].astype(np.int64) + chunk.base
-                    if len(offs) and (offs.max() + 31 > chunk.base + chunk.size
-                                      or (buf[offs] != OP_MESSAGE).any()):
-                        found = {}
-                        chunk.scan = True
-                        break
-                    found[ch] = np.sort(offs)
-            if chunk.scan or not chunk.indexes:
-                found = {ch: np.array(v, np.int64) for ch, v in
-                         self._scan_records(chunk.piece, chunk.base, chunk.size).items()}
-            for ch, offs in found.items():
-                out.setdefault(ch, []).append((chunk.piece, offs))
+        try:
+            for chunk in self.chunks:
+                if chunk.indexes and not chunk.scan:
+                    found = self._indexed(chunk)
+                else:
+                    walked: dict[int, list[int]] = {}
+                    self._records(chunk, chunk.base, chunk.base + chunk.size, True, walked)
+                    found = {ch: np.array(v, np.int64) for ch, v in walked.items()}
+                for ch, offs in found.items():
+                    out.setdefault(ch, []).append((chunk.piece, offs))
+        except _Damage as exc:
+            raise self.error(exc.offset, exc.what) from None
         if self.loose:
             loose = np.array(self.loose, np.int64)
             chans = self.file[loose[:, None] + np.arange(9, 11)].copy().view('<u2')[:, 0]
             for ch in np.unique(chans).tolist():
                 out.setdefault(ch, []).append((0, loose[chans == ch]))
         return out
-
-
-def _read_str(data, p: int) -> tuple[str, int]:
-    n = _U32.unpack_from(data, p)[0]
-    return bytes(data[p + 4:p + 4 + n]).decode(), p + 4 + n
 
 
 def _gather_u64(buf: np.ndarray, offs: np.ndarray, at: int) -> np.ndarray:
@@ -355,20 +564,15 @@ def read_bag(path: str | Path) -> BagData:
     """
     files, meta, warnings = mcap_files(path)
     bag = BagData(str(path), warnings=warnings)
+    state = recording_state(path) if Path(path).is_dir() else None
     per_topic: dict[str, list] = {}
     for f in files:
-        try:
-            data = f.read_bytes()
-        except OSError as exc:
-            raise BagError(f'{f}: cannot read: {exc.strerror or exc}') from None
-        if len(data) < 8 or data[:8] != MAGIC:
-            raise BagError(f'{f}: not an MCAP file')
-        scan = _Scan(data, f.name)
+        scan = _open_scan(f, path, state, bag)
         bag.warnings += scan.warnings
         bag.truncated |= scan.truncated
         if ROBOT_RECORD in scan.metadata and bag.robot is None:
             bag.robot = _robot(scan.metadata[ROBOT_RECORD])
-        for ch, places in scan.locate().items():
+        for ch, places in scan.located.items():
             channel = scan.channels.get(ch)
             if channel is None:
                 bag.warnings.append(f'{f.name}: messages on unknown channel {ch} skipped')
@@ -379,13 +583,67 @@ def read_bag(path: str | Path) -> BagData:
             bag.message_count += n
             if channel.encoding == 'cdr':
                 per_topic.setdefault(channel.topic, []).append((scan, places))
-    if meta is not None and not bag.truncated:
+    if meta is not None and not bag.truncated and state != RECORDING_OPEN:
         expected = meta.get('message_count')
         if isinstance(expected, int) and expected != bag.message_count:
             bag.warnings.append(f'{path}: metadata.yaml counts {expected} messages, the '
                                 f'file holds {bag.message_count}')
+    bag.lost = _lost(meta)
+    for topic, n in sorted(bag.lost.items()):
+        bag.warnings.append(f'{topic}: {n} messages were lost before the recorder (counted '
+                            'by it from publisher sequence gaps and DDS loss events)')
     _decode_topics(bag, per_topic)
     return bag
+
+
+def _lost(meta: dict | None) -> dict[str, int]:
+    """Per-topic loss counts the recorder wrote to ``metadata.yaml`` (custom_data)."""
+    custom = (meta or {}).get('custom_data')
+    text = custom.get(LOST_KEY) if isinstance(custom, dict) else None
+    if not text:
+        return {}
+    try:
+        counts = json.loads(text)
+        return {str(k): int(v) for k, v in counts.items() if int(v) > 0}
+    except (ValueError, TypeError, AttributeError):
+        return {}
+
+
+def _read(f: Path) -> bytes:
+    try:
+        return f.read_bytes()
+    except OSError as exc:
+        raise BagError(f'{f}: cannot read: {exc.strerror or exc}') from None
+
+
+def _open_scan(f: Path, path: str | Path, state: str | None, bag: BagData) -> _Scan:
+    """Scan the MCAP file ``f`` of the bag at ``path`` (recording marker ``state``).
+
+    A bag marked as being recorded is read up to its last complete record while its
+    recorder holds the file's lock, and recovered in place first when the recorder died
+    (:func:`arm_bag.recover.recover_bag`); any other damaged file raises BagError.
+    """
+    data = _read(f)
+    if state != RECORDING_OPEN:
+        return _Scan(data, str(f), hint=str(path))
+    if is_locked(f):
+        scan = _Scan(data, str(f), live=True, hint=str(path))
+        bag.truncated |= scan.truncated
+        bag.warnings.append(f'{f}: still being recorded (a recorder holds its lock): read '
+                            f'up to its last complete record, byte {scan.end} of {len(data)}')
+        return scan
+    try:
+        return _Scan(data, str(f), hint=str(path))
+    except BagError as exc:
+        damage = str(exc)
+    from arm_bag.recover import RecoveryError, recover_bag
+
+    try:
+        report = recover_bag(f)
+    except (RecoveryError, OSError) as exc:
+        raise BagError(f'{damage} (automatic recovery failed: {exc})') from None
+    bag.warnings.append(f'{f}: recovered unfinished recording: {report.summary()}')
+    return _Scan(_read(f), str(f), hint=str(path))
 
 
 def _robot(values: dict[str, str]) -> dict:

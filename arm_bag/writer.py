@@ -1,57 +1,68 @@
-"""rosbag2 bag writer: ``<dir>/<name>_0.mcap`` + ``<dir>/metadata.yaml`` (pure, no rclpy).
+"""rosbag2 bag writer on the ``mcap`` library: ``<dir>/<name>_0.mcap`` + ``metadata.yaml``.
 
-The MCAP file follows the ``ros2`` profile as rosbag2 (Jazzy) writes it: schema encoding
-``ros2msg``, message encoding ``cdr``, channel metadata ``offered_qos_profiles`` and
-``topic_type_hash``, and on close a metadata record ``rosbag2`` whose
-``serialized_metadata`` is the bag metadata YAML. ``metadata.yaml`` is rosbag2 metadata
-version 9.
+Pure (no rclpy). The MCAP file is written by :class:`mcap.writer.Writer` and follows the
+``ros2`` profile as rosbag2 (Jazzy) writes it: schema encoding ``ros2msg``, message
+encoding ``cdr``, channel metadata ``offered_qos_profiles`` and ``topic_type_hash``, and on
+close a metadata record ``rosbag2`` whose ``serialized_metadata`` is the bag metadata YAML.
+``metadata.yaml`` is rosbag2 metadata version 9. Every chunk carries the CRC of its
+records and the data end record the CRC of the whole data section, so a reader can tell a
+damaged file from an intact one (:mod:`arm_bag.reader` checks both).
 
-Durability: messages are buffered in a chunk that is written when it exceeds
-``chunk_size`` bytes or when :meth:`BagWriter.flush` is called (the recorder calls it on a
-wall-clock timer); each flush also rewrites ``metadata.yaml`` (atomically) with the counts
-written so far. A process killed without warning therefore loses only the messages since
-the last flush, and the file up to that point is a readable (if footer-less) MCAP file.
-If a write fails (e.g. ENOSPC), the file is truncated back to the end of the last complete
-chunk, :class:`BagWriteError` is raised, and :meth:`BagWriter.close` then writes what it
-can (summary and footer) so the bag stays readable.
+Durability:
+
+* Messages are buffered in the open chunk, which is written when it exceeds ``chunk_size``
+  bytes or on :meth:`BagWriter.flush` (the recorder calls it on a wall-clock timer; each
+  flush also rewrites ``metadata.yaml`` atomically). A process killed without warning loses
+  only the messages since the last flush, and the file up to there is intact MCAP without a
+  summary.
+* While the bag is open, ``metadata.yaml`` says ``arm_sim.recording: open`` in its
+  ``custom_data`` and the ``.mcap`` file holds an exclusive ``flock`` (the kernel drops it
+  when the process dies, SIGKILL included). A bag still marked open whose file is not locked
+  was left by a writer that died: :mod:`arm_bag.recover` completes it (arm_sim does this
+  automatically when it opens such a bag; ``arm-sim bag recover DIR`` by hand).
+* A full disk: a reserve file of ``2 * chunk_size + 32 KiB`` (``.arm_sim_reserve``) is
+  allocated when the bag is created. The first write that fails with ENOSPC is cut back,
+  the reserve is freed and the write retried; from then on no message is accepted
+  (:class:`BagWriteError`) and :meth:`BagWriter.close` writes the summary and footer into
+  the freed space, so the bag is complete. Any other write error leaves the file cut back to
+  its last complete record (still marked open, so it is recovered the next time).
+
+Messages can be counted as lost (:meth:`BagWriter.count_lost`); the counts per topic are
+written to ``metadata.yaml`` (``custom_data``: ``arm_sim.lost`` as JSON) so every reader
+of the bag sees them.
 """
 
 from __future__ import annotations
 
+import errno
+import fcntl
+import json
 import os
-import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
+from typing import BinaryIO, cast
 
-import numpy as np
 import yaml
+from mcap.writer import CompressionType, Writer
 
-MAGIC = b'\x89MCAP0\r\n'
-LIBRARY = 'arm_sim arm_bag'
-OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 1, 2, 3, 4, 5, 6
-OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS, OP_METADATA = 7, 8, 11, 12
-OP_METADATA_INDEX, OP_SUMMARY_OFFSET, OP_DATA_END = 13, 14, 15
+from arm_bag.bagfile import (
+    LOST_KEY,
+    RECORDING_CLOSED,
+    RECORDING_KEY,
+    RECORDING_OPEN,
+    bag_metadata,
+)
+
+LIBRARY = 'arm_sim arm_bag (mcap python)'
 COMPRESSIONS = ('none', 'zstd', 'lz4')
-_MSG_HEAD = struct.Struct('<BQHIQQ')  # opcode, length, channel, sequence, log, publish
+_COMPRESSION = {'none': CompressionType.NONE, 'zstd': CompressionType.ZSTD,
+                'lz4': CompressionType.LZ4}
+RESERVE_NAME = '.arm_sim_reserve'
+RESERVE_EXTRA = 32 * 1024  # bytes on top of two chunks: summary, footer, metadata
 
 
 class BagWriteError(OSError):
-    """Writing the bag failed (e.g. the disk is full); the bag was left readable."""
-
-
-def _str(s: str) -> bytes:
-    b = s.encode()
-    return struct.pack('<I', len(b)) + b
-
-
-def _map_str(d: dict[str, str]) -> bytes:
-    body = b''.join(_str(k) + _str(v) for k, v in d.items())
-    return struct.pack('<I', len(body)) + body
-
-
-def _record(op: int, body: bytes) -> bytes:
-    return struct.pack('<BQ', op, len(body)) + body
+    """Writing the bag failed (e.g. the disk is full); what was written stays readable."""
 
 
 @dataclass
@@ -67,15 +78,83 @@ class Topic:
     pending: int = 0     # messages in the open chunk
 
 
+class _BagFile:
+    """The stream the mcap ``Writer`` writes to: a file whose failed writes are cut back to
+    the last complete write (each of the Writer's writes ends on a record boundary), and
+    whose first ENOSPC is absorbed by freeing the reserve."""
+
+    def __init__(self, path: Path, reserve: Path, reserve_bytes: int) -> None:
+        self.path = path
+        self.reserve = reserve
+        self.file = open(path, 'xb', buffering=0)  # closed in BagWriter.close()
+        self.pos = 0
+        self.out_of_space = False
+        self.error: BagWriteError | None = None
+        try:
+            fcntl.flock(self.file.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            with open(reserve, 'wb') as f:
+                os.posix_fallocate(f.fileno(), 0, reserve_bytes)
+        except OSError:
+            self.file.close()
+            path.unlink(missing_ok=True)
+            reserve.unlink(missing_ok=True)
+            raise
+
+    def write(self, data) -> int:
+        if self.error is not None:
+            raise self.error
+        view = memoryview(data)
+        try:
+            self._write_all(view)
+        except OSError as exc:
+            self._cut()
+            if exc.errno not in (errno.ENOSPC, errno.EDQUOT) or self.out_of_space:
+                self.error = BagWriteError(exc.errno, f'writing {self.path} failed: '
+                                           f'{exc.strerror or exc}')
+                raise self.error from exc
+            self.out_of_space = True
+            self.free_reserve()
+            try:
+                self._write_all(view)
+            except OSError as again:
+                self._cut()
+                self.error = BagWriteError(again.errno, f'writing {self.path} failed: '
+                                           f'{again.strerror or again}')
+                raise self.error from again
+        self.pos += len(view)
+        return len(view)
+
+    def _write_all(self, view: memoryview) -> None:
+        done = 0
+        while done < len(view):
+            done += self.file.write(view[done:]) or 0
+
+    def _cut(self) -> None:
+        try:
+            self.file.truncate(self.pos)
+            self.file.seek(self.pos)
+        except OSError:
+            pass
+
+    def free_reserve(self) -> None:
+        self.reserve.unlink(missing_ok=True)
+
+    def tell(self) -> int:
+        return self.pos
+
+    def flush(self) -> None:
+        pass  # unbuffered
+
+
 class BagWriter:
-    """Write a rosbag2 bag directory with one MCAP file.
+    """Write a rosbag2 bag directory with one MCAP file (see the module docstring).
 
     Parameters
     ----------
     directory : str or Path
         The bag directory; it must not exist (FileExistsError naming it).
-    chunk_size : int, bytes
-        A chunk is written once its uncompressed size reaches this.
+    chunk_size : int, bytes, >= 1
+        A chunk is written once its uncompressed size exceeds this.
     compression : {'none', 'zstd', 'lz4'}
         Chunk compression.
     ros_distro : str
@@ -98,52 +177,55 @@ class BagWriter:
         self.chunk_size = int(chunk_size)
         self.compression = compression
         self.ros_distro = ros_distro
-        self._compress = _compressor(compression)
         self.topics: dict[str, Topic] = {}
+        self._by_channel: dict[int, Topic] = {}
         self._schemas: dict[str, int] = {}
-        self._schema_records: list[bytes] = []
-        self._channel_records: list[bytes] = []
-        self._chunk_indexes: list[bytes] = []
-        self._metadata_indexes: list[bytes] = []
-        self._chunk = bytearray()
-        self._chunk_index: dict[int, list[tuple[int, int]]] = {}
-        self._chunk_times: list[int] = []
+        self.lost: dict[str, int] = {}
         self.message_count = 0           # written to the file
+        self._pending = 0                # in the open chunk
         self.start_ns: int | None = None
         self.end_ns: int | None = None
-        self.chunk_count = 0
-        self.metadata_count = 0
         self.failed: str | None = None
         self.closed = False
-        self._file: BinaryIO = open(self.path, 'wb')  # closed in close()
-        self._good = 0  # file offset after the last complete record group
-        self._write(MAGIC + _record(OP_HEADER, _str('ros2') + _str(LIBRARY)))
+        try:
+            self._file = _BagFile(self.path, self.directory / RESERVE_NAME,
+                                  2 * self.chunk_size + RESERVE_EXTRA)
+        except OSError:
+            self.directory.rmdir()
+            raise
+        # _BagFile has the three methods the Writer uses (write, tell, flush).
+        self._mcap = Writer(cast(BinaryIO, self._file), chunk_size=self.chunk_size,
+                            compression=_COMPRESSION[compression], enable_crcs=True,
+                            enable_data_crcs=True)
+        self._guard(lambda: self._mcap.start(profile='ros2', library=LIBRARY))
 
     # ------------------------------------------------------------------ low level
-    def _write(self, data: bytes | bytearray) -> None:
+    def _guard(self, fn):
+        """Run one mcap Writer call; a failed write marks the bag failed for good."""
         if self.failed:
-            raise BagWriteError(self.failed)
+            raise BagWriteError(errno.EIO, self.failed)
         try:
-            self._file.write(data)
-            self._file.flush()
-        except OSError as exc:
-            self._fail(exc)
-        self._good = self._file.tell()
+            out = fn()
+        except BagWriteError as exc:
+            self.failed = (f'{exc.strerror}; recording stopped, {self.message_count} '
+                           'messages kept')
+            raise BagWriteError(exc.errno, self.failed) from exc
+        return out
 
-    def _fail(self, exc: OSError) -> None:
-        self.failed = (f'writing {self.path} failed: {exc.strerror or exc}; recording '
-                       f'stopped, {self.message_count} messages kept')
-        try:  # the buffered file may still hold the failed bytes: drop it
-            self._file.close()
-        except OSError:
-            pass
-        try:  # reopen and cut the partial record so the file ends on a record boundary
-            self._file = open(self.path, 'r+b')
-            self._file.truncate(self._good)
-            self._file.seek(self._good)
-        except OSError:
-            pass
-        raise BagWriteError(exc.errno, self.failed) from exc
+    def _after_write(self, before: int) -> None:
+        """The mcap Writer wrote the open chunk if the file grew: count its messages. After
+        the reserve was spent, refuse everything from now on."""
+        if self._file.pos != before and self._pending:
+            for t in self.topics.values():
+                t.count += t.pending
+                t.pending = 0
+            self.message_count += self._pending
+            self._pending = 0
+        if self._file.out_of_space and not self.failed:
+            self.failed = (f'writing {self.path} failed: No space left on device; recording '
+                           'stopped, '
+                           f'{self.message_count + self._pending} messages kept (the bag '
+                           'is complete)')
 
     # ------------------------------------------------------------------ topics
     def add_topic(self, name: str, type_name: str, schema: str, qos: str = '',
@@ -152,96 +234,60 @@ class BagWriter:
         RIHS01 hash); returns its channel id. Adding a known topic returns the same id."""
         if name in self.topics:
             return self.topics[name].channel_id
-        schema_id = self._schemas.get(type_name)
-        records = b''
-        if schema_id is None:
-            schema_id = len(self._schemas) + 1
-            self._schemas[type_name] = schema_id
-            rec = _record(OP_SCHEMA, struct.pack('<H', schema_id) + _str(type_name)
-                          + _str('ros2msg') + _str(schema))
-            self._schema_records.append(rec)
-            records += rec
-        channel_id = len(self.topics) + 1
-        rec = _record(OP_CHANNEL, struct.pack('<HH', channel_id, schema_id) + _str(name)
-                      + _str('cdr') + _map_str({'offered_qos_profiles': qos,
-                                                 'topic_type_hash': type_hash}))
-        self._channel_records.append(rec)
-        self._write(records + rec)
-        self.topics[name] = Topic(channel_id, name, type_name, qos, type_hash)
-        self._chunk_index[channel_id] = []
+        before = self._file.pos
+
+        def register() -> int:
+            schema_id = self._schemas.get(type_name)
+            if schema_id is None:
+                schema_id = self._mcap.register_schema(type_name, 'ros2msg', schema.encode())
+                self._schemas[type_name] = schema_id
+            return self._mcap.register_channel(
+                name, 'cdr', schema_id, {'offered_qos_profiles': qos,
+                                         'topic_type_hash': type_hash})
+
+        channel_id = self._guard(register)
+        self._after_write(before)
+        topic = Topic(channel_id, name, type_name, qos, type_hash)
+        self.topics[name] = self._by_channel[channel_id] = topic
         return channel_id
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """Write an MCAP metadata record ``name`` (string keys and values) now."""
-        self.flush_chunk()
-        offset = self._file.tell()
-        rec = _record(OP_METADATA, _str(name) + _map_str({str(k): str(v)
-                                                          for k, v in data.items()}))
-        self._write(rec)
-        self.metadata_count += 1
-        self._metadata_indexes.append(_record(
-            OP_METADATA_INDEX, struct.pack('<QQ', offset, len(rec)) + _str(name)))
+        self._guard(lambda: self._mcap.add_metadata(
+            name, {str(k): str(v) for k, v in data.items()}))
 
     # ------------------------------------------------------------------ messages
     def write(self, channel_id: int, data: bytes, log_time_ns: int,
-              publish_time_ns: int | None = None) -> None:
-        """Append one serialized (CDR) message received at ``log_time_ns`` [ns]."""
-        chunk = self._chunk
-        self._chunk_index[channel_id].append((log_time_ns, len(chunk)))
-        self._chunk_times.append(log_time_ns)
-        chunk += _MSG_HEAD.pack(OP_MESSAGE, 22 + len(data), channel_id, 0, log_time_ns,
-                                log_time_ns if publish_time_ns is None else publish_time_ns)
-        chunk += data
-        if len(chunk) >= self.chunk_size:
-            self.flush_chunk()
+              publish_time_ns: int | None = None, sequence: int = 0) -> None:
+        """Append one serialized (CDR) message received at ``log_time_ns`` [ns];
+        ``sequence`` is the publisher's sequence number (0 if unknown)."""
+        topic = self._by_channel[channel_id]
+        before = self._file.pos
+        self._guard(lambda: self._mcap.add_message(
+            channel_id, log_time_ns, data,
+            log_time_ns if publish_time_ns is None else publish_time_ns, sequence))
+        topic.pending += 1
+        self._pending += 1
+        self.start_ns = log_time_ns if self.start_ns is None else min(self.start_ns,
+                                                                      log_time_ns)
+        self.end_ns = log_time_ns if self.end_ns is None else max(self.end_ns, log_time_ns)
+        self._after_write(before)
+
+    def count_lost(self, topic: str, n: int) -> None:
+        """Count ``n`` messages of ``topic`` as lost before they reached the bag."""
+        if n > 0:
+            self.lost[topic] = self.lost.get(topic, 0) + int(n)
 
     def flush_chunk(self) -> None:
         """Write the open chunk (if any) and its message indexes to the file."""
-        if not self._chunk_times:
-            return
-        raw = bytes(self._chunk)
-        start, end = min(self._chunk_times), max(self._chunk_times)
-        data = self._compress(raw)
-        chunk_start = self._file.tell()
-        body = (struct.pack('<QQQI', start, end, len(raw), 0) + _str(self.compression
-                if self.compression != 'none' else '') + struct.pack('<Q', len(data)))
-        head = struct.pack('<BQ', OP_CHUNK, len(body) + len(data)) + body
-        parts = [head, data]
-        index_offsets = {}
-        pos = chunk_start + len(head) + len(data)
-        counts = {}
-        for ch, entries in self._chunk_index.items():
-            if not entries:
-                continue
-            arr = np.asarray(entries, dtype='<u8').tobytes()
-            rec = _record(OP_MESSAGE_INDEX, struct.pack('<HI', ch, len(arr)) + arr)
-            index_offsets[ch] = pos
-            pos += len(rec)
-            parts.append(rec)
-            counts[ch] = len(entries)
-        index_length = pos - (chunk_start + len(head) + len(data))
-        self._write(b''.join(parts))
-        offsets = b''.join(struct.pack('<HQ', ch, off) for ch, off in index_offsets.items())
-        self._chunk_indexes.append(_record(OP_CHUNK_INDEX, struct.pack(
-            '<QQQQ', start, end, chunk_start, len(head) + len(data))
-            + struct.pack('<I', len(offsets)) + offsets + struct.pack('<Q', index_length)
-            + _str(self.compression if self.compression != 'none' else '')
-            + struct.pack('<QQ', len(data), len(raw))))
-        self.chunk_count += 1
-        by_id = {t.channel_id: t for t in self.topics.values()}
-        for ch, n in counts.items():
-            by_id[ch].count += n
-            self._chunk_index[ch] = []
-        self.message_count += len(self._chunk_times)
-        self.start_ns = start if self.start_ns is None else min(self.start_ns, start)
-        self.end_ns = end if self.end_ns is None else max(self.end_ns, end)
-        self._chunk = bytearray()
-        self._chunk_times = []
+        before = self._file.pos
+        self._guard(self._mcap.flush)
+        self._after_write(before)
 
     @property
     def pending(self) -> int:
         """Messages buffered in the open chunk (lost if the process is killed now)."""
-        return len(self._chunk_times)
+        return self._pending
 
     def flush(self) -> None:
         """Write the open chunk and rewrite ``metadata.yaml`` with the counts so far."""
@@ -251,100 +297,58 @@ class BagWriter:
     # ------------------------------------------------------------------ metadata
     def metadata(self) -> dict:
         """The bag metadata (the content of ``rosbag2_bagfile_information``)."""
-        start = self.start_ns or 0
-        duration = (self.end_ns - start) if self.end_ns is not None else 0
-        topics = []
-        for t in self.topics.values():
-            qos = yaml.safe_load(t.qos) if t.qos else []
-            topics.append({'topic_metadata': {
-                'name': t.name, 'type': t.type, 'serialization_format': 'cdr',
-                'offered_qos_profiles': qos or [], 'type_description_hash': t.type_hash},
-                'message_count': t.count})
-        return {
-            'version': 9, 'storage_identifier': 'mcap',
-            'duration': {'nanoseconds': duration},
-            'starting_time': {'nanoseconds_since_epoch': start},
-            'message_count': self.message_count,
-            'topics_with_message_count': topics,
-            'compression_format': '', 'compression_mode': '',
-            'relative_file_paths': [self.file_name],
-            'files': [{'path': self.file_name,
-                       'starting_time': {'nanoseconds_since_epoch': start},
-                       'duration': {'nanoseconds': duration},
-                       'message_count': self.message_count}],
-            'custom_data': None, 'ros_distro': self.ros_distro}
+        return bag_metadata(
+            [(t.name, t.type, t.qos, t.type_hash, t.count) for t in self.topics.values()],
+            [(self.file_name, self.start_ns, self.end_ns, self.message_count)],
+            base={'ros_distro': self.ros_distro},
+            custom={RECORDING_KEY: RECORDING_CLOSED if self.closed else RECORDING_OPEN,
+                    **({LOST_KEY: json.dumps(self.lost, sort_keys=True)}
+                       if self.lost else {})})
 
     def write_metadata_yaml(self) -> None:
         """Atomically (re)write ``metadata.yaml``; errors are raised as BagWriteError."""
-        text = yaml.safe_dump({'rosbag2_bagfile_information': self.metadata()},
-                              sort_keys=False)
-        tmp = self.directory / '.metadata.yaml.tmp'
-        try:
-            tmp.write_text(text)
-            os.replace(tmp, self.directory / 'metadata.yaml')
-        except OSError as exc:
-            tmp.unlink(missing_ok=True)
-            raise BagWriteError(exc.errno, f'writing {self.directory}/metadata.yaml failed: '
-                                f'{exc.strerror or exc}') from exc
+        write_metadata_yaml(self.directory, self.metadata())
 
     # ------------------------------------------------------------------ close
     def close(self) -> None:
         """Write the last chunk, the ``rosbag2`` metadata record, the summary and footer,
-        and ``metadata.yaml``. After a failure it writes what still fits; the first error
-        is raised again at the end."""
+        and ``metadata.yaml`` (marked closed). After a failed write the file is left cut
+        back to its last complete record and still marked open (so it is recovered when
+        next opened); the error is raised again."""
         if self.closed:
             return
-        self.closed = True
         error: BagWriteError | None = None
         try:
-            if not self.failed:
-                self.flush_chunk()
-            self.failed = None  # retry with the smaller writes below (space was freed)
-            self.add_metadata('rosbag2', {'serialized_metadata': yaml.safe_dump(
-                self.metadata(), sort_keys=False)})
-            self._write_summary()
+            if self._file.error is None:
+                self._finish_chunk()
+                self.closed = True
+                meta = yaml.safe_dump(self.metadata(), sort_keys=False)
+                self._mcap.add_metadata('rosbag2', {'serialized_metadata': meta})
+                self._mcap.finish()
         except BagWriteError as exc:
+            self.closed = False
             error = exc
         finally:
+            self._file.free_reserve()
             try:
-                self._file.close()
+                self._file.file.close()  # also drops the lock
             except OSError:
                 pass
+        if self._file.error is not None and error is None:
+            error = self._file.error
         try:
             self.write_metadata_yaml()
         except BagWriteError as exc:
             error = error or exc
+        self.closed = True
         if error is not None:
-            raise error
+            raise BagWriteError(error.errno, self.failed or str(error.strerror or error))
 
-    def _write_summary(self) -> None:
-        data_end = _record(OP_DATA_END, struct.pack('<I', 0))
-        summary_start = self._file.tell() + len(data_end)
-        groups: list[tuple[int, bytes]] = [
-            (OP_SCHEMA, b''.join(self._schema_records)),
-            (OP_CHANNEL, b''.join(self._channel_records)),
-            (OP_STATISTICS, self._statistics()),
-            (OP_CHUNK_INDEX, b''.join(self._chunk_indexes)),
-            (OP_METADATA_INDEX, b''.join(self._metadata_indexes))]
-        summary = bytearray()
-        offsets = bytearray()
-        for op, blob in groups:
-            if blob:
-                offsets += _record(OP_SUMMARY_OFFSET, struct.pack(
-                    '<BQQ', op, summary_start + len(summary), len(blob)))
-                summary += blob
-        offset_start = summary_start + len(summary)
-        footer = _record(OP_FOOTER, struct.pack('<QQI', summary_start, offset_start, 0))
-        self._write(data_end + bytes(summary) + bytes(offsets) + footer + MAGIC)
-
-    def _statistics(self) -> bytes:
-        counts = b''.join(struct.pack('<HQ', t.channel_id, t.count)
-                          for t in self.topics.values())
-        return _record(OP_STATISTICS, struct.pack(
-            '<QHIIII', self.message_count, len(self._schemas), len(self.topics), 0,
-            self.metadata_count, self.chunk_count)
-            + struct.pack('<QQ', self.start_ns or 0, self.end_ns or 0)
-            + struct.pack('<I', len(counts)) + counts)
+    def _finish_chunk(self) -> None:
+        """Write the open chunk, also after a full disk freed the reserve."""
+        before = self._file.pos
+        self._mcap.flush()
+        self._after_write(before)
 
     def __enter__(self) -> BagWriter:
         return self
@@ -353,14 +357,15 @@ class BagWriter:
         self.close()
 
 
-def _compressor(name: str):
-    if name == 'zstd':
-        import zstandard
-
-        return zstandard.ZstdCompressor(level=1).compress
-    if name == 'lz4':
-        import lz4.frame
-
-        return lz4.frame.compress
-    return lambda b: b
-
+# ---------------------------------------------------------------------- metadata.yaml
+def write_metadata_yaml(directory: Path, metadata: dict) -> None:
+    """Atomically (re)write ``directory/metadata.yaml``; errors raise BagWriteError."""
+    text = yaml.safe_dump({'rosbag2_bagfile_information': metadata}, sort_keys=False)
+    tmp = directory / '.metadata.yaml.tmp'
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, directory / 'metadata.yaml')
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise BagWriteError(exc.errno, f'writing {directory}/metadata.yaml failed: '
+                            f'{exc.strerror or exc}') from exc

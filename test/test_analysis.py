@@ -2,20 +2,23 @@
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from arm_bag import metrics
 from arm_bag.analysis import analyze
 from arm_bag.cdr import decode_joint_states_bulk, encode_joint_state
-from arm_bag.reader import read_bag
+from arm_bag.reader import BagError, read_bag
 from arm_bag.synthetic import open_bag, write_run
-from arm_bag.writer import BagWriteError, BagWriter
+from arm_bag.writer import RECORDING_KEY, RESERVE_NAME, BagWriteError, BagWriter
 from arm_dynamics import TwoLinkArm
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -213,15 +216,18 @@ def test_bulk_decoder_ignores_padding_bytes_and_falls_back_for_odd_messages():
 
 
 # ---------------------------------------------------------------------- damaged bags
-def test_truncated_bag_without_metadata_is_read_up_to_the_damage(tmp_path):
+def test_a_cut_finished_bag_is_an_error_naming_the_cut_and_the_recover_command(tmp_path):
+    """A bare .mcap (no recording marker) that was cut is never read partially: the error
+    names the file, the byte where it ends and how to keep what is intact; the bag
+    directory without metadata.yaml is still read in full."""
     synthetic_bag(tmp_path / 'bag')
     mcap = tmp_path / 'bag' / 'bag_0.mcap'
     data = mcap.read_bytes()
     bare = tmp_path / 'cut.mcap'
-    bare.write_bytes(data[:int(len(data) * 0.8)])
-    bag = read_bag(bare)
-    assert bag.truncated and any('truncated' in w for w in bag.warnings)
-    assert 0 < len(bag.joint_states) <= 28
+    cut = int(len(data) * 0.8)
+    bare.write_bytes(data[:cut])
+    with pytest.raises(BagError, match=f'{bare}: byte {cut}: .*arm-sim bag recover {bare}`'):
+        read_bag(bare)
     (tmp_path / 'bag' / 'metadata.yaml').unlink()
     assert len(read_bag(tmp_path / 'bag').joint_states) == 28
 
@@ -261,25 +267,65 @@ def test_geared_link_energy_counts_the_motor_not_its_output_again(tmp_path):
     assert rep.run['torque_peak'] == pytest.approx([0.5, 0.5 * n]), 'both still reported'
 
 
-def test_write_error_leaves_a_readable_bag_and_names_the_file(tmp_path):
-    """ENOSPC is simulated by swapping the file object for /dev/full (the real full disk
+class _Failing:
+    """A file object whose next ``fails`` writes raise ``err`` (a full disk, an I/O error)."""
+
+    def __init__(self, f, err: int, fails: int = 1) -> None:
+        self.f, self.err, self.fails = f, err, fails
+
+    def write(self, data):
+        if self.fails:
+            self.fails -= 1
+            raise OSError(self.err, os.strerror(self.err))
+        return self.f.write(data)
+
+    def __getattr__(self, name):
+        return getattr(self.f, name)
+
+
+def test_a_full_disk_spends_the_reserve_on_a_complete_bag_and_refuses_more(tmp_path):
+    """The first ENOSPC is absorbed by freeing the reserve file: that write lands, no
+    message is accepted after it, and close() writes summary and footer (the real full disk
     is tested with the recorder on a tmpfs in test_recorder.py)."""
     w, ch = open_bag(tmp_path / 'bag', chunk_size=1 << 30)
     t = np.arange(10) * 0.01
     z = np.zeros((10, 2))
     write_run(w, ch, 1000, t, z, z, z, None)
     w.flush()
-    good = w.path.stat().st_size
-    w._file.close()
-    w._file = open('/dev/full', 'wb')  # the writer reopens its own file
+    assert (tmp_path / 'bag' / RESERVE_NAME).is_file()
+    w._file.file = _Failing(w._file.file, errno.ENOSPC)
     write_run(w, ch, 10**9, t, z, z, z, None)
-    with pytest.raises(BagWriteError, match='No space left'):
-        w.flush_chunk()
+    w.flush_chunk()  # fails once, lands in the reserve's space
+    assert not (tmp_path / 'bag' / RESERVE_NAME).exists()
+    with pytest.raises(BagWriteError, match='No space left on device; recording stopped, 20'):
+        write_run(w, ch, 2 * 10**9, t, z, z, z, None)
     w.close()
-    assert w.path.stat().st_size > good, 'summary and footer written after the failure'
-    # close() retried the failed chunk, which fits now that the 'disk' has space again
+    assert sorted(p.name for p in (tmp_path / 'bag').iterdir()) == ['bag_0.mcap',
+                                                                     'metadata.yaml']
     bag = read_bag(tmp_path / 'bag')
     assert len(bag.joint_states) == 20 and not bag.truncated and bag.warnings == []
+    meta = yaml.safe_load((tmp_path / 'bag' / 'metadata.yaml').read_text())
+    assert meta['rosbag2_bagfile_information']['custom_data'] == {RECORDING_KEY: 'closed'}
+
+
+def test_a_failed_write_cuts_the_file_back_to_its_last_record_and_leaves_it_open(tmp_path):
+    w, ch = open_bag(tmp_path / 'bag', chunk_size=1 << 30)
+    t = np.arange(10) * 0.01
+    z = np.zeros((10, 2))
+    write_run(w, ch, 1000, t, z, z, z, None)
+    w.flush()
+    good = w.path.stat().st_size
+    w._file.file = _Failing(w._file.file, errno.EIO)
+    write_run(w, ch, 10**9, t, z, z, z, None)
+    with pytest.raises(BagWriteError, match=f'{w.path} failed: Input/output error'):
+        w.flush_chunk()
+    with pytest.raises(BagWriteError, match='recording stopped, 10 messages kept'):
+        w.close()
+    assert w.path.stat().st_size == good, 'cut back to the end of the last chunk'
+    meta = yaml.safe_load((tmp_path / 'bag' / 'metadata.yaml').read_text())
+    info = meta['rosbag2_bagfile_information']
+    assert info['custom_data'][RECORDING_KEY] == 'open' and info['message_count'] == 10
+    assert not (tmp_path / 'bag' / RESERVE_NAME).exists()
 
 
 # ---------------------------------------------------------------------- CLI
