@@ -1,17 +1,43 @@
 """``recorder`` node: records topics as serialized messages into a rosbag2 bag (MCAP).
 
-Thin ROS shell around :class:`arm_bag.writer.BagWriter`: raw (undeserialised) subscriptions,
-log time = the recorder's clock at receive (wall-clock system time by default; simulated
+Thin ROS shell around :class:`arm_bag.writer.BagWriter` (the ``mcap`` library's Writer,
+chunk and data CRCs on). What it does about loss, in the order a message meets it:
+
+* **Subscribed before the publishers exist.** The suite's topics have known types, so they
+  are subscribed when the recorder starts, with the QoS their publishers offer (reliable;
+  ``planner/path`` and ``arm_controller/trajectory_status`` transient local). A publisher
+  appearing later is seen at once: the recorder listens to ``ros_discovery_info`` (the
+  message every ROS process sends when its entities change) and looks at the graph then,
+  besides a 0.1 s poll as rosbag2 has. Topics of unknown type (``topics: ['*']`` or your
+  own) are subscribed when their first publisher appears, with its type and QoS; a
+  subscription whose QoS no longer matches every publisher (a best-effort or volatile
+  publisher joined) is made again with the QoS they all offer, as ``ros2 bag record`` does.
+* **Wrong type.** A publisher of another type on a recorded topic is reported
+  (``recorder: wrong_type`` on /diagnostics) and the topic goes on being recorded from
+  the publishers of its type.
+* **Deep queue, drained in a tight loop.** Each subscription keeps the last
+  ``queue_depth`` messages; its callback takes every message waiting (raw bytes, with the
+  message info) in one loop instead of one executor round per message.
+* **Counted loss.** Each message carries its publisher's sequence number; on a topic with
+  one publisher a gap is an exact count of messages that never reached the recorder (a
+  restarted publisher starts again at 1 and is not a loss). DDS "message lost" events
+  count the rest. Losses are reported per topic on /diagnostics (``recorder: lost``), in
+  ``metadata.yaml`` (``custom_data: arm_sim.lost``) and by ``arm-sim analyze``.
+
+Log time = the recorder's clock at receive (wall-clock system time by default; simulated
 time, the latest ``clock`` received, with ``use_sim_time: true``, as ``ros2 bag record
---use-sim-time`` does), the graph polled every 0.5 s (wall) for topics that appear later,
-the robot parameters stored as the MCAP metadata record ``arm_sim_robot`` (JSON values).
+--use-sim-time`` does); publish time = the publisher's source timestamp; the MCAP sequence
+= the publication sequence number. The robot parameters are stored as the MCAP metadata
+record ``arm_sim_robot`` (JSON values).
 
 Durability: the open chunk is written and ``metadata.yaml`` rewritten every
 ``flush_period`` (wall clock) and whenever the chunk reaches ``chunk_size`` bytes, so a
-SIGKILL loses at most the messages received in the last ``flush_period`` seconds (and at
-most ``chunk_size`` bytes of them). SIGINT/SIGTERM close the bag (exit 0). A write error
-(e.g. disk full) stops recording with one error line, reports it on /diagnostics, leaves a
-readable bag and exits 1. An existing ``output`` directory is refused (exit 2).
+SIGKILL loses at most the messages received in the last ``flush_period`` seconds; the bag
+is marked open and locked while recording, so arm_sim completes it the next time it opens
+it (or ``arm-sim bag recover DIR``). SIGINT/SIGTERM take what is still queued and close
+the bag (exit 0). A full disk spends the bag's reserve on a complete bag, stops recording
+with one error line, reports it on /diagnostics and exits 1. An existing ``output``
+directory is refused (exit 2).
 """
 
 from __future__ import annotations
@@ -21,10 +47,12 @@ import importlib
 import json
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from rclpy.executors import Executor, SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
@@ -34,6 +62,7 @@ from rclpy.qos import (
 )
 from rclpy.subscription import Subscription
 
+from arm_bag.loss import GapCounter
 from arm_bag.msgdefs import MessageDefinitionError, QosProfile, qos_yaml, schema_text, type_hash
 from arm_bag.writer import BagWriteError, BagWriter
 from arm_common.node import (
@@ -47,23 +76,41 @@ from arm_common.node import (
 from arm_common.params import ParamSpec
 from arm_dynamics.robot import ROBOT_PARAMS
 
+InvalidHandle = _rclpy.InvalidHandle
+
 SUMMARY = '''
 Records topics into a rosbag2 bag directory (metadata.yaml + <name>_0.mcap, MCAP profile
-ros2, CDR messages, ros2msg schemas) without deserialising them; log time = receive time on
-the recorder's clock: wall-clock system time, or simulated time (the latest clock message)
-with use_sim_time:=true. Analysis uses the messages' header stamps, never the log time.
-Topics that appear later are picked up (graph polled every 0.5 s). SIGINT/SIGTERM close the
-bag (exit 0); a SIGKILL loses at most the last flush_period of messages. The robot
-parameters are stored in the MCAP metadata record arm_sim_robot. Reports received,
-written and dropped message counts on /diagnostics (status "recorder: summary"; lost
-messages and skipped topics as "recorder: dropped" and "recorder: skipped_topic").
+ros2, CDR messages, ros2msg schemas, chunk CRCs) without deserialising them. The suite's
+topics are subscribed at start with their publishers' QoS; others when a publisher appears
+(graph events). Log time = receive time on the recorder's clock: wall-clock system time,
+or simulated time (the latest clock message) with use_sim_time:=true. Messages lost before
+the recorder (publisher sequence gaps, DDS loss events) are counted per topic on
+/diagnostics ("recorder: lost"), in metadata.yaml (custom_data arm_sim.lost) and by
+arm-sim analyze. SIGINT/SIGTERM close the bag (exit 0); a SIGKILL loses at most the last
+flush_period of messages and the bag is completed the next time arm_sim opens it. The robot
+parameters are stored in the MCAP metadata record arm_sim_robot.
 '''
-DEFAULT_TOPICS = ['joint_states', 'effort_controller/commands', 'arm_controller/reference',
-                  'arm_controller/joint_trajectory', 'goal_pose', 'planner/path',
-                  '/diagnostics']
-DISCOVERY_PERIOD = 0.5  # s, wall clock
-QUEUE_DEPTH = 1000
+#: The suite's topics (relative to the recorder's namespace; '/x' absolute) and types.
+KNOWN_TOPICS = {
+    'joint_states': 'sensor_msgs/msg/JointState',
+    'effort_controller/commands': 'std_msgs/msg/Float64MultiArray',
+    'arm_controller/reference': 'sensor_msgs/msg/JointState',
+    'arm_controller/joint_trajectory': 'trajectory_msgs/msg/JointTrajectory',
+    'arm_controller/trajectory_status': 'diagnostic_msgs/msg/DiagnosticStatus',
+    'goal_pose': 'geometry_msgs/msg/PoseStamped',
+    'planner/path': 'nav_msgs/msg/Path',
+    'clock': 'rosgraph_msgs/msg/Clock',
+    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
+}
+#: Known topics whose publishers are transient local (latched).
+LATCHED = frozenset({'planner/path', 'arm_controller/trajectory_status'})
+DEFAULT_TOPICS = list(KNOWN_TOPICS)
+DISCOVERY_PERIOD = 0.1  # s, wall clock: the fallback poll (rosbag2's default)
+DRAIN_MAX = 5000  # messages taken in one callback before other callbacks get a turn
 LINGER = 1.0  # s (wall) the node stays up after a write failure, to report it
+FIRST_MESSAGE = 'first message on'  # logged once per topic (arm-sim bringup waits on it)
+GRAPH_TOPIC = 'ros_discovery_info'
+GRAPH_TYPE = 'rmw_dds_common/msg/ParticipantEntitiesInfo'
 
 RECORDER_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('output', 'string', '', 'Bag directory to create (required; must not exist)',
@@ -76,6 +123,9 @@ RECORDER_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('flush_period', 'double', 0.5, 'Wall-clock period of writing the open chunk and '
               'metadata.yaml (bounds the loss on SIGKILL)', 's', minimum=0.01, maximum=60.0,
               read_only=True),
+    ParamSpec('queue_depth', 'int', 10000, 'Messages each subscription keeps while the '
+              'recorder is busy (more than this in a burst are lost, and counted)',
+              'messages', minimum=1, maximum=1_000_000, read_only=True),
 )
 
 _HISTORY = {HistoryPolicy.KEEP_LAST: 'keep_last', HistoryPolicy.KEEP_ALL: 'keep_all'}
@@ -110,6 +160,39 @@ def message_class(type_name: str):
     return getattr(importlib.import_module(f'{pkg}.{kind}'), name)
 
 
+def adapted_qos(profiles: list, latched_default: bool) -> tuple[bool, bool]:
+    """(reliable, transient_local) a subscription needs to match every publisher in
+    ``profiles`` and get what they keep (rosbag2's rule); with no publisher known yet,
+    reliable and ``latched_default``."""
+    if not profiles:
+        return True, latched_default
+    reliable = all(q.reliability == ReliabilityPolicy.RELIABLE for q in profiles)
+    latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in profiles)
+    return reliable, latched
+
+
+@dataclass
+class _Topic:
+    """One recorded topic: its subscription and counts."""
+
+    name: str
+    type_name: str
+    cls: Any
+    qos: tuple[bool, bool]            # (reliable, transient_local) subscribed with
+    sub: Subscription | None = None
+    channel: int | None = None        # MCAP channel, made at the first message
+    received: int = 0
+    gap_lost: int = 0                 # from publisher sequence gaps
+    event_lost: int = 0               # from DDS message-lost events
+    publishers: int = 0               # of the right type, at the last graph look
+    gaps: GapCounter = field(default_factory=GapCounter)
+    wrong: set[str] = field(default_factory=set)
+
+    @property
+    def lost(self) -> int:
+        return max(self.gap_lost, self.event_lost)
+
+
 class RecorderNode(Node):
     """See the module docstring."""
 
@@ -128,20 +211,30 @@ class RecorderNode(Node):
         except (OSError, ValueError) as exc:
             raise ConfigError(f'output {str(out)!r}: {exc}') from None
         self.sim_clock = bool(self.get_parameter('use_sim_time').value)
+        self.depth = int(p['queue_depth'])
         self.wanted = list(p['topics'])
         self.all_topics = '*' in self.wanted
+        self.known = {self.resolve_topic_name(t): ty for t, ty in KNOWN_TOPICS.items()}
+        self.latched = {self.resolve_topic_name(t) for t in LATCHED}
         self.resolved = {self.resolve_topic_name(t) for t in self.wanted if t != '*'}
-        self.subs: dict[str, Subscription] = {}
-        self.channels: dict[str, int] = {}
+        self.topics: dict[str, _Topic] = {}
         self.skipped: set[str] = set()
         self.received = 0
-        self.per_topic: dict[str, int] = {}  # messages received per topic
-        self.dropped = 0
         self.failed: str | None = None
         self.stopped = False
         self.diag = Diagnostics(self)
+        for name in sorted(self.resolved):
+            if name in self.known:  # subscribed now: nothing its publishers send is missed
+                self._subscribe(name, self.known[name], [])
         self.create_timer(DISCOVERY_PERIOD, self.discover, clock=steady_clock())
         self.create_timer(p['flush_period'], self.flush, clock=steady_clock())
+        try:
+            graph_qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
+            graph_qos.avoid_ros_namespace_conventions = True
+            self.create_subscription(message_class(GRAPH_TYPE), GRAPH_TOPIC,
+                                     lambda _msg: self.discover(), graph_qos)
+        except (ImportError, AttributeError):
+            pass  # without rmw_dds_common the poll alone finds new publishers
         self.discover()
         self.get_logger().info(
             f"recording to {out} (flush every {p['flush_period']:g} s, chunk "
@@ -149,82 +242,164 @@ class RecorderNode(Node):
 
     # ------------------------------------------------------------------ topics
     def discover(self) -> None:
+        """Look at the graph: subscribe new topics, adapt QoS, report wrong types."""
         if self.stopped:
             return
-        for name, types in self.get_topic_names_and_types():
-            if name in self.subs or name in self.skipped:
+        for name, _types in self.get_topic_names_and_types():
+            if name in self.skipped or (not self.all_topics and name not in self.resolved):
                 continue
-            if not self.all_topics and name not in self.resolved:
+            if name == '/' + GRAPH_TOPIC:
                 continue
-            if len(types) != 1:
-                self._skip(name, f'{len(types)} types advertised ({types})')
+            infos = self.get_publishers_info_by_topic(name)
+            if not infos:
                 continue
-            self._subscribe(name, types[0])
+            rec = self.topics.get(name)
+            type_name = rec.type_name if rec else self._choose_type(name, infos)
+            if type_name is None:
+                continue
+            right = [i for i in infos if i.topic_type == type_name]
+            if rec is None:
+                self._subscribe(name, type_name, [i.qos_profile for i in right])
+                rec = self.topics.get(name)
+                if rec is None:
+                    continue
+            self._check_publishers(rec, infos, right)
+
+    def _choose_type(self, name: str, infos) -> str | None:
+        types = sorted({i.topic_type for i in infos},
+                       key=lambda t: (-sum(i.topic_type == t for i in infos), t))
+        return types[0] if types else None
+
+    def _check_publishers(self, rec: _Topic, infos, right) -> None:
+        rec.publishers = len(right)
+        rec.gaps.graph(len(right))
+        for i in infos:
+            if i.topic_type != rec.type_name and i.topic_type not in rec.wrong:
+                rec.wrong.add(i.topic_type)
+                self.diag.problem('wrong_type', f'{rec.name}: a publisher of '
+                                  f'{i.topic_type} (node {i.node_namespace.rstrip("/")}/'
+                                  f'{i.node_name}) is not recorded; recording the '
+                                  f'{rec.type_name} publishers', topic=rec.name,
+                                  type=i.topic_type)
+        need = adapted_qos([i.qos_profile for i in right], rec.name in self.latched)
+        if right and need != rec.qos:
+            # A publisher this subscription cannot match (best effort, volatile) or one
+            # whose kept messages it would not get: subscribe again with what all offer.
+            old = rec.sub
+            rec.qos = need
+            rec.sub = self._create(rec)
+            if old is not None:  # what reached only the old one (the overlap may repeat a
+                self._drain_sub(rec, old)  # few messages, as two subscriptions would)
+                self.destroy_subscription(old)
+            self.get_logger().info(
+                f"{rec.name}: subscribed again as {'reliable' if need[0] else 'best effort'}"
+                f", {'transient local' if need[1] else 'volatile'} to match its publishers")
 
     def _skip(self, name: str, reason: str) -> None:
         self.skipped.add(name)
         self.diag.problem('skipped_topic', f'not recording {name}: {reason}')
 
-    def _subscribe(self, name: str, type_name: str) -> None:
+    def _subscribe(self, name: str, type_name: str, profiles: list) -> None:
         try:
             cls = message_class(type_name)
-            schema = schema_text(type_name)
+            schema_text(type_name)
         except (ImportError, AttributeError, ValueError, MessageDefinitionError) as exc:
             self._skip(name, f'type {type_name} unavailable: {exc}')
             return
-        infos = self.get_publishers_info_by_topic(name)
-        profiles = [i.qos_profile for i in infos]
-        reliable = bool(profiles) and all(
-            q.reliability == ReliabilityPolicy.RELIABLE for q in profiles)
-        latched = bool(profiles) and all(
-            q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in profiles)
-        qos = QoSProfile(depth=QUEUE_DEPTH,
+        rec = _Topic(name, type_name, cls, adapted_qos(profiles, name in self.latched))
+        rec.sub = self._create(rec)
+        self.topics[name] = rec
+        self.get_logger().info(f'recording {name} [{type_name}]')
+
+    def _create(self, rec: _Topic) -> Subscription:
+        reliable, latched = rec.qos
+        qos = QoSProfile(depth=self.depth,
                          reliability=(ReliabilityPolicy.RELIABLE if reliable
                                       else ReliabilityPolicy.BEST_EFFORT),
                          durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
                                      else DurabilityPolicy.VOLATILE))
-        thash = type_hash(type_name)
-        if not thash and infos:
-            thash = str(getattr(infos[0], 'topic_type_hash', '') or '')
-        try:
-            ch = self.writer.add_topic(name, type_name, schema, qos_yaml(offered_qos(profiles)),
-                                       thash)
-        except BagWriteError as exc:
-            self._fail(exc)
-            return
-        self.channels[name] = ch
         kwargs: dict[str, Any] = {}
         try:
             from rclpy.event_handler import SubscriptionEventCallbacks
 
-            kwargs['event_callbacks'] = SubscriptionEventCallbacks(message_lost=self._lost)
+            kwargs['event_callbacks'] = SubscriptionEventCallbacks(
+                message_lost=functools.partial(self._lost, rec=rec))
         except ImportError:
             pass
-        self.per_topic[name] = 0
-        self.subs[name] = self.create_subscription(
-            cls, name, functools.partial(self._on_message, ch, topic=name), qos,
-            raw=True, **kwargs)
-        self.get_logger().info(f'recording {name} [{type_name}]')
+        return self.create_subscription(rec.cls, rec.name,
+                                        functools.partial(self._on_message, rec=rec), qos,
+                                        raw=True, **kwargs)
+
+    def _channel(self, rec: _Topic) -> int:
+        """The topic's MCAP channel, made at its first message: by then its publishers are
+        known, so their offered QoS is written with it."""
+        infos = [i for i in self.get_publishers_info_by_topic(rec.name)
+                 if i.topic_type == rec.type_name]
+        thash = type_hash(rec.type_name)
+        if not thash and infos:
+            thash = str(getattr(infos[0], 'topic_type_hash', '') or '')
+        rec.channel = self.writer.add_topic(
+            rec.name, rec.type_name, schema_text(rec.type_name),
+            qos_yaml(offered_qos([i.qos_profile for i in infos])), thash)
+        self.get_logger().info(f'{FIRST_MESSAGE} {rec.name}')
+        return rec.channel
 
     # ------------------------------------------------------------------ data
-    def _on_message(self, channel: int, data: bytes, *, topic: str) -> None:
+    def _on_message(self, data: bytes, info: dict, *, rec: _Topic) -> None:
+        self._take(rec, data, info)
+        self._drain(rec)
+
+    def _drain(self, rec: _Topic, limit: int = DRAIN_MAX) -> None:
+        """Take what is waiting on ``rec``'s subscription, up to ``limit`` messages."""
+        if rec.sub is not None:
+            self._drain_sub(rec, rec.sub, limit)
+
+    def _drain_sub(self, rec: _Topic, sub: Subscription, limit: int = 10**9) -> None:
+        try:
+            with sub.handle:
+                for _ in range(limit):
+                    got = sub.handle.take_message(rec.cls, True)
+                    if got is None:
+                        return
+                    self._take(rec, got[0], got[1])
+        except InvalidHandle:
+            pass  # destroyed while we took: nothing left to take
+
+    def _take(self, rec: _Topic, data: bytes, info: dict) -> None:
         now = self.get_clock().now().nanoseconds if self.sim_clock else time.time_ns()
         self.received += 1
-        self.per_topic[topic] += 1
+        rec.received += 1
+        seq = int(info.get('publication_sequence_number') or 0)
+        gap = rec.gaps.message(seq)
+        if gap:
+            self._count_lost(rec, gap=gap)
         if self.stopped:
-            self.dropped += 1
             return
         try:
-            self.writer.write(channel, data, now)
+            channel = rec.channel if rec.channel is not None else self._channel(rec)
+            self.writer.write(channel, data, now, int(info.get('source_timestamp') or now),
+                              seq)
         except BagWriteError as exc:
-            self.dropped += 1
             self._fail(exc)
 
-    def _lost(self, info) -> None:
-        n = int(getattr(info, 'total_count_change', 1))
-        self.dropped += n
-        self.diag.problem('dropped', f'{n} messages lost before reaching the recorder',
-                          lost=n, dropped=self.dropped)
+    def _lost(self, info, *, rec: _Topic) -> None:
+        self._count_lost(rec, event=int(getattr(info, 'total_count_change', 1)))
+
+    def _count_lost(self, rec: _Topic, gap: int = 0, event: int = 0) -> None:
+        before = rec.lost
+        rec.gap_lost += gap
+        rec.event_lost += event
+        n = rec.lost - before
+        if n <= 0:
+            return
+        self.writer.count_lost(rec.name, n)
+        self.diag.problem('lost', f'{rec.name}: {n} messages lost before reaching the '
+                          f'recorder ({rec.lost} on this topic so far)', topic=rec.name,
+                          lost=rec.lost, lost_total=self.lost)
+
+    @property
+    def lost(self) -> int:
+        return sum(r.lost for r in self.topics.values())
 
     def flush(self) -> None:
         if self.stopped:
@@ -234,47 +409,57 @@ class RecorderNode(Node):
         except BagWriteError as exc:
             self._fail(exc)
             return
-        written = self.writer.message_count
-        self.diag.set('OK' if not self.dropped else 'WARN',
-                      f'recording {len(self.subs)} topics', received=self.received,
-                      written=written, buffered=self.writer.pending, dropped=self.dropped,
-                      topics=sorted(self.subs),
-                      **{f'received {t}': n for t, n in self.per_topic.items()})
+        lost = self.lost
+        self.diag.set('OK' if not lost else 'WARN', f'recording {len(self.topics)} topics',
+                      received=self.received, written=self.writer.message_count,
+                      buffered=self.writer.pending, lost=lost, dropped=lost,
+                      topics=sorted(self.topics),
+                      **{f'received {t}': r.received for t, r in self.topics.items()},
+                      **{f'lost {t}': r.lost for t, r in self.topics.items() if r.lost})
 
     def _fail(self, exc: Exception) -> None:
         if self.stopped:
             return
         self.stopped = True
-        self.failed = str(exc)
+        self.failed = str(exc.strerror if isinstance(exc, OSError) and exc.strerror
+                          else exc)
         self.failed_at = time.monotonic()
-        for sub in self.subs.values():
-            self.destroy_subscription(sub)
-        self.subs.clear()
+        for rec in self.topics.values():
+            if rec.sub is not None:
+                self.destroy_subscription(rec.sub)
+                rec.sub = None
         try:
             self.writer.close()
         except BagWriteError:
             pass
         self.diag.set('ERROR', self.failed, received=self.received,
-                      written=self.writer.message_count, dropped=self.dropped)
+                      written=self.writer.message_count, lost=self.lost)
         # Not diag.problem(): rclpy refuses one logging call site used with two severities
         # (problem() logs both warnings and errors from the same line).
         self.get_logger().error(self.failed)
         self.diag.publish()
 
     def close(self) -> None:
-        """Write everything received and close the bag (idempotent)."""
+        """Take what is still queued, write everything and close the bag (idempotent)."""
         if self.stopped:
             return
+        for rec in self.topics.values():
+            self._drain(rec, limit=10**9)
+            gap = rec.gaps.close()
+            if gap:
+                self._count_lost(rec, gap=gap)
         self.stopped = True
         try:
             self.writer.close()
         except BagWriteError as exc:
-            self.failed = str(exc)
+            self.failed = str(exc.strerror or exc)
             self.get_logger().error(self.failed)
             return
+        lost = {t: r.lost for t, r in self.topics.items() if r.lost}
         self.get_logger().info(
             f'bag closed: {self.writer.message_count} messages written of '
-            f'{self.received} received ({self.dropped} dropped) in {self.writer.directory}')
+            f'{self.received} received ({self.lost} lost before the recorder'
+            f'{": " + json.dumps(lost) if lost else ""}) in {self.writer.directory}')
 
     def destroy_node(self) -> None:
         self.close()

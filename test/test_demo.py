@@ -143,6 +143,18 @@ def recorded_states(out: Path) -> tuple[np.ndarray, ...]:
     return stamps, js.position[first], js.velocity[first], js.effort[first]
 
 
+@pytest.mark.parametrize('label', ['quiet', 'loaded', 'stalled'])
+def test_the_demo_bag_holds_every_state_from_the_first_to_the_last(demo_runs, label):
+    out = demo_runs[label][0]
+    stamps = recorded_states(out)[0]
+    assert stamps[0] == 0, 'from the first state'
+    assert (np.diff(stamps) == 10_000_000).all(), 'every 10 ms state, none missing'
+    bag = read_bag(out / 'bag')
+    assert bag.lost == {} and bag.warnings == [], 'nothing lost, closed cleanly'
+    assert {'/clock', '/joint_states', '/effort_controller/commands',
+            '/arm_controller/reference', '/planner/path'} <= set(bag.topics)
+
+
 @pytest.mark.parametrize('label', ['loaded', 'stalled'])
 def test_demo_records_bit_identical_joint_states_under_load_and_a_stalled_controller(
         demo_runs, label):

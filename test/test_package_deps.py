@@ -45,10 +45,18 @@ ROSDEP_KEYS = {
     'matplotlib': 'python3-matplotlib',  # arm_bag.plot: arm-sim analyze --plot, the demo
     'zstandard': 'python3-zstandard',  # arm_bag.reader/writer: zstd-compressed MCAP chunks
     'lz4': 'python3-lz4',  # arm_bag.reader/writer: lz4-compressed MCAP chunks
+    'mcap': 'python3-mcap',  # arm_bag.writer/recover: the mcap library (pip: mcap)
+}
+
+#: Optional imports (a setup.py extra, imported only when asked for): no run dependency.
+OPTIONAL = {
+    'distributed': "arm-sim sweep --dask only (setup.py extra 'dask')",
 }
 
 #: exec_depends no module imports, with the reason they are there anyway.
-NOT_IMPORTED: dict[str, str] = {}
+NOT_IMPORTED: dict[str, str] = {
+    'rmw_dds_common': 'the recorder subscribes ros_discovery_info, imported by type name',
+}
 
 
 def sources() -> list[Path]:
@@ -69,7 +77,8 @@ def third_party_imports() -> dict[str, set[str]]:
                 continue
             for name in names:
                 top = name.split('.')[0]
-                if top in sys.stdlib_module_names or top in PACKAGES or top == '__future__':
+                if (top in sys.stdlib_module_names or top in PACKAGES or top in OPTIONAL
+                        or top == '__future__'):
                     continue
                 found.setdefault(top, set()).add(str(path.relative_to(ROOT)))
     return found

@@ -2,17 +2,26 @@
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
+import sys
+import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
-from conftest import statuses, values
+from conftest import DOMAIN_ID, statuses, values
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from arm_bag.reader import read_bag
+from arm_bag.writer import RESERVE_NAME
+from arm_sim.launcher import node_env
 
 N = 200
 
@@ -94,19 +103,24 @@ def test_recorded_messages_read_back_identical_with_rosbags(ros, launch, tmp_pat
     assert bag.robot['link_lengths'] == [1.0, 0.8] and bag.warnings == []
 
 
-def test_sigkill_loses_at_most_the_last_flush_and_the_rest_is_readable(ros, launch,
-                                                                       tmp_path):
+def test_sigkill_loses_at_most_the_last_flush_and_the_bag_is_completed_when_opened(
+        ros, launch, tmp_path):
     proc, out, sent, diags = record(ros, launch, tmp_path)
     assert proc.stop(signal.SIGKILL) == -signal.SIGKILL
     ros.wait_gone('recorder')  # its lease: no later node may be handed its ports before
     meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
-    bag = read_bag(out)
-    assert bag.truncated, 'no footer after SIGKILL'
-    assert len(bag.joint_states) == N, 'everything flushed before the kill is readable'
-    assert meta['message_count'] <= bag.message_count
+    assert meta['custom_data']['arm_sim.recording'] == 'open', 'the recorder never closed it'
     counts = {t['topic_metadata']['name']: t['message_count']
               for t in meta['topics_with_message_count']}
-    assert counts['/joint_states'] == N
+    assert counts['/joint_states'] == N, 'metadata.yaml is as new as the last flush'
+    bag = read_bag(out)  # completes the unfinished bag first
+    assert [w for w in bag.warnings if 'recovered unfinished recording' in w], bag.warnings
+    assert len(bag.joint_states) == N, 'everything flushed before the kill is kept'
+    messages, (count, _, _) = rosbags_messages(out)  # now every tool opens it
+    assert [raw for _, raw in messages['/joint_states']] == sent
+    meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert meta['custom_data']['arm_sim.recording'] == 'closed'
+    assert meta['message_count'] == count == bag.message_count
 
 
 def test_existing_output_directory_is_refused(tmp_path):
@@ -153,7 +167,144 @@ def test_full_disk_stops_recording_with_one_error_and_a_readable_bag(ros, launch
                      5, 'ERROR on /diagnostics')
         bag = read_bag(mnt / 'bag')
         assert len(bag.joint_states) > 100
+        assert bag.warnings == [] and not bag.truncated, 'complete: summary and footer fit'
+        assert not (mnt / 'bag' / RESERVE_NAME).exists()
         assert bag.joint_states.position[:, 0] == pytest.approx(
             0.001 * (bag.joint_states.stamp // 10_000_000))
     finally:
         subprocess.run(['umount', '-l', str(mnt)], check=False)
+
+
+def pace(rate: float):
+    """Yield once per 1/rate s of wall clock (a publisher's pace, not a wait on an outcome)."""
+    start = time.perf_counter()
+    k = 0
+    while True:
+        k += 1
+        yield
+        ahead = start + k / rate - time.perf_counter()
+        if ahead > 0:
+            time.sleep(ahead)
+
+
+def test_a_known_sequence_at_10k_messages_per_second_is_recorded_whole_and_in_order(
+        ros, launch, tmp_path):
+    n, rate = 10_000, 10_000.0
+    out = tmp_path / 'bag'
+    ghosts = recorder_endpoints(ros)
+    proc = launch('recorder', params={'output': str(out), 'topics': ['joint_states']})
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    # Reliable with room for the whole run: what the recorder cannot take at once waits.
+    pub = ros.publisher(JointState, 'joint_states', qos=n)
+    ros.wait_for(lambda: recorder_endpoints(ros) - ghosts and
+                 pub.get_subscription_count() >= 1, 20, 'the recorder to subscribe')
+    data = [serialize_message(state(i)) for i in range(n)]
+    for raw, _ in zip(data, pace(rate)):
+        pub.publish(raw)
+    ros.wait_for(lambda: int(recorder_status(diags).get('written', 0)) >= n, 60,
+                 f'the recorder to report {n} messages written')
+    assert proc.stop(signal.SIGINT) == 0, proc.output()
+    bag = read_bag(out)
+    stamps = bag.joint_states.stamp
+    assert len(stamps) == n and bag.message_count == n, 'every message, once'
+    assert (stamps == np.arange(n) * 10_000_000).all(), 'in the order they were sent'
+    meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert 'arm_sim.lost' not in meta['custom_data']
+    assert int(recorder_status(diags)['lost']) == 0
+
+
+def test_lost_messages_are_counted_per_topic_from_the_publisher_sequence(ros, launch,
+                                                                          tmp_path):
+    """A publisher stopped (SIGSTOP) cannot lose anything, so loss is made where it
+    happens: a recorder whose queue holds 1 message, flooded by a best-effort burst."""
+    out = tmp_path / 'bag'
+    ghosts = recorder_endpoints(ros)
+    proc = launch('recorder', params={'output': str(out), 'topics': ['joint_states'],
+                                      'queue_depth': 1})
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+    pub = ros.node.create_publisher(JointState, 'joint_states', qos)
+    ros._entities.append(pub)
+    ros.wait_for(lambda: recorder_endpoints(ros) - ghosts and
+                 pub.get_subscription_count() >= 1, 20, 'the recorder to subscribe')
+    # The recorder subscribes again best effort once it sees this publisher.
+    ros.wait_for(lambda: 'best effort' in proc.output(), 20,
+                 'the recorder to match the best-effort publisher')
+    n = 5000
+    data = [serialize_message(state(i)) for i in range(n)]
+    for raw in data:
+        pub.publish(raw)
+    last = data[-1]
+    ros.wait_for(lambda: int(recorder_status(diags).get('received', 0))
+                 + int(recorder_status(diags).get('lost', 0)) >= n
+                 or (pub.publish(last) and False), 30,
+                 'the recorder to account for every message sent')
+    assert proc.stop(signal.SIGINT) == 0, proc.output()
+    meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    lost = json.loads(meta['custom_data']['arm_sim.lost'])['/joint_states']
+    assert lost > 0, 'a queue of 1 under a burst of 5000 loses messages'
+    from mcap.reader import make_reader
+
+    with open(next(out.glob('*.mcap')), 'rb') as f:
+        seqs = [m.sequence for _, ch, m in make_reader(f).iter_messages()
+                if ch.topic == '/joint_states']
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs), 'in order, each once'
+    # Every publication between the first and the last recorded one is kept or counted.
+    assert len(seqs) + lost == seqs[-1] - seqs[0] + 1
+    assert int(recorder_status(diags)['lost']) == lost
+    warned = [w for w in read_bag(out).warnings if 'lost before the recorder' in w]
+    assert warned == [f'/joint_states: {lost} messages were lost before the recorder '
+                      '(counted by it from publisher sequence gaps and DDS loss events)']
+
+
+WRONG_TYPE_PUBLISHER = '''
+import sys, rclpy
+from std_msgs.msg import String
+rclpy.init()
+node = rclpy.create_node('wrong_type')
+pub = node.create_publisher(String, 'joint_states', 10)
+sys.stdin.read()
+node.destroy_node()
+rclpy.try_shutdown()
+'''
+
+
+def test_a_late_publisher_a_wrong_type_and_clock_are_recorded_as_rosbag2_does(
+        ros, launch, tmp_path):
+    out = tmp_path / 'bag'
+    ghosts = recorder_endpoints(ros)
+    proc = launch('recorder', params={'output': str(out)})
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    ros.wait_for(lambda: recorder_endpoints(ros) - ghosts, 20, 'the recorder to subscribe')
+    # A wrong-type publisher on joint_states (another process: one participant cannot
+    # have both types on a topic), then the right one; and /clock.
+    wrong = subprocess.Popen([sys.executable, '-c', WRONG_TYPE_PUBLISHER],
+                             env=node_env(DOMAIN_ID), stdin=subprocess.PIPE)
+    pub = ros.publisher(JointState, 'joint_states', qos=1000)
+    clock = ros.publisher(Clock, 'clock', qos=10)
+    ros.wait_for(lambda: pub.get_subscription_count() >= 1 and
+                 clock.get_subscription_count() >= 1, 20, 'the recorder to match')
+    for i in range(100):
+        pub.publish(state(i))
+        c = Clock()
+        c.clock.sec, c.clock.nanosec = divmod(i * 10_000_000, 1_000_000_000)
+        clock.publish(c)
+    ros.wait_for(lambda: int(recorder_status(diags).get('received /joint_states', 0)) >= 100
+                 and int(recorder_status(diags).get('received /clock', 0)) >= 100, 20,
+                 'the recorder to receive the states and clocks')
+    try:
+        ros.wait_for(lambda: statuses(diags, '/recorder', 'wrong_type'), 20,
+                     'the wrong-type report')
+    finally:
+        wrong.communicate(b'', timeout=30)  # its stdin closes: it exits
+    assert proc.stop(signal.SIGINT) == 0, proc.output()
+    messages, _ = rosbags_messages(out)
+    assert len(messages['/joint_states']) == 100 and len(messages['/clock']) == 100
+    meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    qos = {t['topic_metadata']['name']: t['topic_metadata']['offered_qos_profiles']
+           for t in meta['topics_with_message_count'] if t['message_count']}
+    assert set(qos) == {'/joint_states', '/clock', '/diagnostics'}
+    assert all(qos.values()), 'offered QoS written for every recorded topic'
+    assert len(qos['/joint_states']) == 1, 'the JointState publisher, not the String one'
+    found = statuses(diags, '/recorder', 'wrong_type')[-1]
+    assert 'std_msgs/msg/String' in found.message
