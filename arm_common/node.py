@@ -32,6 +32,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 
 from arm_common.params import ParamSpec, command_line_parameters
+from arm_common.process import watch_parent
 from arm_common.throttle import Throttle
 
 LEVELS = {'OK': DiagnosticStatus.OK, 'WARN': DiagnosticStatus.WARN,
@@ -392,6 +393,7 @@ def run_node(factory: Callable[[], Node | list[Node]], *, prog: str, summary: st
     rclpy.init(args=[prog, *argv], signal_handler_options=SignalHandlerOptions.NO)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.append(True))
+    watch_parent()
 
     def running() -> bool:
         return not stop and rclpy.ok()

@@ -12,8 +12,9 @@ import os
 import signal
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
+
+from arm_common.process import PARENT_ENV
 
 MODULES = {
     'simulator': 'arm_dynamics.simulator_node',
@@ -79,18 +80,18 @@ class NodeProcess:
         if params_file:
             ros_args += ['--params-file', str(params_file)]
         sections = {**({name: params} if params else {}), **(node_params or {})}
+        pass_fds: tuple[int, ...] = ()
         if sections:
             # '-p' overrides count as '/**' entries, which a params file's '/**/<node>'
             # section beats; a second file keyed by node name overrides both. A process
-            # of several nodes (composed) gets a section per node (``node_params``).
-            fd, path = tempfile.mkstemp(prefix=f'{name}-', suffix='.params.yaml')
-            with os.fdopen(fd, 'w') as f:
-                json.dump({f'/**/{node}': {'ros__parameters': values}
-                           for node, values in sections.items()}, f)  # JSON is YAML
-            self._params_path: str | None = path
-            ros_args += ['--params-file', path]
-        else:
-            self._params_path = None
+            # of several nodes (composed) gets a section per node (``node_params``). The
+            # file lives in memory (memfd) and is handed to the child as an open file, so
+            # nothing is left on disk whatever happens to either process.
+            fd = os.memfd_create(f'{name}.params.yaml')
+            os.write(fd, json.dumps({f'/**/{node}': {'ros__parameters': values}
+                                     for node, values in sections.items()}).encode())
+            pass_fds = (fd,)
+            ros_args += ['--params-file', f'/proc/self/fd/{fd}']  # JSON is YAML
         if namespace:
             ros_args += ['-r', f'__ns:={namespace}']
         for src, dst in (remaps or {}).items():
@@ -98,9 +99,16 @@ class NodeProcess:
         self.cmd = executable(name) + (extra_args or []) + (
             ['--ros-args', *ros_args] if ros_args else [])
         self.log_path = Path(log_path) if log_path else None
-        with open(self.log_path or os.devnull, 'wb') as out:
-            self.proc = subprocess.Popen(self.cmd, env=node_env(domain_id), stdout=out,
-                                         stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+        env = node_env(domain_id)
+        env[PARENT_ENV] = str(os.getpid())  # the node exits when this process dies
+        try:
+            with open(self.log_path or os.devnull, 'wb') as out:
+                self.proc = subprocess.Popen(self.cmd, env=env, stdout=out,
+                                             stderr=subprocess.STDOUT,
+                                             stdin=subprocess.DEVNULL, pass_fds=pass_fds)
+        finally:
+            for fd in pass_fds:
+                os.close(fd)
 
     def alive(self) -> bool:
         return self.proc.poll() is None
@@ -114,9 +122,6 @@ class NodeProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
-        if self._params_path:
-            Path(self._params_path).unlink(missing_ok=True)
-            self._params_path = None
         return self.proc.returncode
 
     def output(self) -> str:

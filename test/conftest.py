@@ -12,6 +12,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -92,6 +93,14 @@ def shm_holders(session_only: bool = False) -> set[str]:
     return held
 
 
+def temp_files() -> set[str]:
+    """arm_sim's own kind of files in the temporary directory (parameter files, bags,
+    runs), outside pytest's per-test directories."""
+    tmp = Path(tempfile.gettempdir())
+    return {p.name for pattern in ('*.params.yaml', '*arm_sim*', '*arm-sim*', '*.mcap')
+            for p in tmp.glob(pattern)}
+
+
 @pytest.fixture(scope='session', autouse=True)
 def leaves_nothing_behind():
     """After the session: no node process left running, and no Fast DDS shared-memory file
@@ -99,10 +108,12 @@ def leaves_nothing_behind():
     tests) cannot remove theirs: ``fastdds shm clean`` (Fast DDS's own tool) and then this
     fixture remove every such file no live process holds. What the test process itself
     holds goes when it exits (``run.sh test`` cleans after pytest)."""
-    procs_before, shm_before = node_processes(), shm_files()
+    procs_before, shm_before, temp_before = node_processes(), shm_files(), temp_files()
     yield
     left = node_processes() - procs_before
     assert not left, f'node processes left running: {sorted(left)}'
+    temp_left = temp_files() - temp_before
+    assert not temp_left, f'temporary files left behind: {sorted(temp_left)}'
     clean = Path(sys.executable).parent / 'fastdds'
     if clean.exists():
         subprocess.run([str(clean), 'shm', 'clean'], capture_output=True, timeout=60)

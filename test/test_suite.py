@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pathlib
 import subprocess
 import sys
 
@@ -15,6 +16,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
+from arm_bag.reader import read_bag
 from arm_dynamics import TwoLinkArm
 from arm_sim.client import stamp_of as stamp
 from arm_sim.launcher import config_file, node_env
@@ -252,7 +254,14 @@ def test_arm_sim_bringup_runs_the_suite_in_real_time_and_stops_it_cleanly(ros, t
     assert proc.returncode == 0, out
     assert f'stopped: {stopped}' in out
     if '--no-record' not in extra:
-        assert (tmp_path / 'run' / 'bag' / 'metadata.yaml').exists()
+        bag = read_bag(tmp_path / 'run' / 'bag')
+        assert bag.warnings == [], 'closed cleanly, nothing lost'
+        stamps = np.unique(bag.joint_states.stamp)
+        seen = {int(stamp(m) * 1e9 + 0.5) for m in states}
+        if '--composed' not in extra:  # composed: the loop runs before the recorder matches
+            assert stamps[0] == 0, 'from the first state on'
+        assert seen <= set(stamps.tolist()), 'every state this test saw is in the bag'
+        assert '/clock' in bag.topics
 
 
 def test_a_goal_sent_right_after_a_controller_restart_is_executed(ros, launch):
@@ -329,3 +338,50 @@ def test_a_motion_cut_by_a_simulator_restart_is_planned_again_and_finished(ros, 
                     f'at t={stamp(run[-1]) if run else None} s, tip '
                     f'{tip(run[-1:]).tolist() if run else None}; last states '
                     f'{[stamp(m) for m in states[-5:]]}; simulator: {summary[-1:]}')
+
+
+def node_children(pid: int) -> list[int]:
+    """PIDs of the processes whose parent is ``pid``."""
+    found = []
+    for proc in pathlib.Path('/proc').iterdir():
+        try:
+            if proc.name.isdigit() and int(
+                    (proc / 'stat').read_text().rsplit(')', 1)[1].split()[1]) == pid:
+                found.append(int(proc.name))
+        except (OSError, IndexError, ValueError):
+            continue
+    return found
+
+
+def running(pid: int) -> bool:
+    """The process exists and is not a zombie (a zombie has exited)."""
+    try:
+        return pathlib.Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0] != 'Z'
+    except (OSError, IndexError):
+        return False
+
+
+def test_a_killed_bringup_takes_its_nodes_with_it_and_its_bag_is_closed(ros, tmp_path):
+    import signal
+
+    from conftest import DOMAIN_ID
+    states = ros.collect(JointState, 'joint_states', qos=1000)
+    proc = subprocess.Popen([sys.executable, '-m', 'arm_sim.cli', 'bringup', '--out',
+                             str(tmp_path / 'run'), '--domain-id', str(DOMAIN_ID)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
+                            env=node_env(DOMAIN_ID))
+    try:
+        ros.wait_for(lambda: states and stamp(states[-1]) > 0.2, timeout=30,
+                     what='the suite to run')
+        nodes = node_children(proc.pid)
+        assert len(nodes) == 4, nodes
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    # Each node gets SIGTERM from the kernel when its parent dies, and stops cleanly.
+    ros.wait_for(lambda: not any(running(p) for p in nodes), timeout=30,
+                 what='every node of the killed bringup to exit')
+    meta = (tmp_path / 'run' / 'bag' / 'metadata.yaml').read_text()
+    assert 'arm_sim.recording: closed' in meta, 'the recorder closed its bag on SIGTERM'
+    bag = read_bag(tmp_path / 'run' / 'bag')
+    assert bag.warnings == [] and len(bag.joint_states) > 20
