@@ -18,6 +18,7 @@ import numpy as np
 from arm_dynamics.timing import TIMING_MODES
 
 EXIT_ERROR = 1
+EXIT_USAGE = 2
 EXIT_REFUSED = 3
 EXIT_TIMEOUT = 4
 
@@ -30,10 +31,23 @@ class CliError(Exception):
         self.code = code
 
 
+#: ROS domain ids Fast DDS can map to ports (0..232, as ROS 2 documents).
+DOMAIN_RANGE = (0, 232)
+
+
 def _domain(args: argparse.Namespace) -> int:
     from arm_sim.demo import default_domain
 
-    return args.domain_id if args.domain_id is not None else default_domain()
+    try:
+        domain = args.domain_id if args.domain_id is not None else default_domain()
+    except ValueError:
+        raise CliError(f"ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID')!r} is not a number",
+                       EXIT_USAGE) from None
+    lo, hi = DOMAIN_RANGE
+    if not lo <= domain <= hi:
+        raise CliError(f'--domain-id {domain} is out of range: ROS domain ids are {lo}..{hi} '
+                       '(the DDS port of a higher one does not exist)', EXIT_USAGE)
+    return domain
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -43,13 +57,14 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from arm_sim.client import SuiteError
     from arm_sim.demo import Demo, summary_table
 
+    domain = _domain(args)
     out = Path(args.out) if args.out else Path('runs') / time.strftime('demo-%Y%m%d-%H%M%S')
     if out.exists():
         raise CliError(f'{out} exists; choose another --out')
     started = time.monotonic()
     print(f'arm-sim demo: regulation and straight-line tracking on the simulated 2-R arm '
           f'(output in {out}/)')
-    demo = Demo(out, _domain(args), fast=args.fast, slow=args.slow)
+    demo = Demo(out, domain, fast=args.fast, slow=args.slow)
     try:
         bag = demo.run()
     except SuiteError as exc:
@@ -75,6 +90,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def cmd_bringup(args: argparse.Namespace) -> int:
     """Start the suite and keep it running until Ctrl-C."""
+    from arm_bag.recorder_node import FIRST_MESSAGE
     from arm_sim.launcher import NodeProcess, config_file
 
     domain = _domain(args)
@@ -86,13 +102,36 @@ def cmd_bringup(args: argparse.Namespace) -> int:
     overrides = {'simulator': {'simulator': {'timing_mode': args.timing_mode}},
                  'recorder': {'recorder': {'output': str(out / 'bag')}}}
     overrides['composed'] = overrides['simulator']  # per node, by node name
-    procs = []
-    for name in nodes:
+    procs: list = []
+
+    def start(name: str) -> None:
         # Each node resolves /clock in its own namespace (arm_common.node).
         procs.append(NodeProcess(name, params_file=config_file(),
                                  node_params=overrides.get(name),
                                  namespace=ns or None, domain_id=domain,
                                  log_path=out / 'logs' / f'{name}.log'))
+
+    try:
+        if args.record:
+            # Recorder first, then the simulator, and the rest only once the recorder has
+            # the first state: the simulator repeats it until the first command comes, so
+            # the bag holds every state from the first on.
+            start('recorder')
+            _wait_log(procs[-1], 'recording to')
+            start(loop[0])
+            if loop[0] == 'simulator':
+                _wait_log(procs[0], f'{FIRST_MESSAGE} {ns or ""}/joint_states'
+                          .replace('//', '/'))
+            for name in nodes:
+                if name not in ('recorder', loop[0]):
+                    start(name)
+        else:
+            for name in nodes:
+                start(name)
+    except BaseException:  # a refusal, or Ctrl-C while starting: stop what runs
+        for p in procs:
+            p.stop(signal.SIGINT)
+        raise
     shown = ['simulator + controller (one process)' if n == 'composed' else n for n in nodes]
     print(f'arm-sim bringup: {", ".join(shown)} running on ROS domain {domain} '
           f'(namespace {ns or "/"}, simulator {args.timing_mode}); logs in {out}/logs')
@@ -109,11 +148,27 @@ def cmd_bringup(args: argparse.Namespace) -> int:
         print('\nstopping ...')
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut cleanup
-        codes = {p.name: p.stop(signal.SIGINT) for p in procs}
+        # The recorder last, so it has every message the others sent.
+        order = sorted(procs, key=lambda p: p.name == 'recorder')
+        codes = {p.name: p.stop(signal.SIGINT) for p in order}
+        codes = {n: codes[n] for n in nodes if n in codes}
     print('stopped: ' + ', '.join(f'{n} ({c})' for n, c in codes.items()))
     if args.record:
         print(f'bag: {out / "bag"}  (arm-sim analyze {out / "bag"})')
     return 0
+
+
+def _wait_log(proc, text: str, timeout: float = 30.0) -> None:
+    """Wait until ``proc``'s log has a line containing ``text`` (evidence, not a delay)."""
+    end = time.monotonic() + timeout
+    while text not in proc.output():
+        if not proc.alive():
+            raise CliError(f'{proc.name} exited with code {proc.proc.returncode}; see '
+                           f'{proc.log_path}')
+        if time.monotonic() > end:
+            raise CliError(f'{proc.name} did not log {text!r} within {timeout:g} s; see '
+                           f'{proc.log_path}')
+        time.sleep(0.05)  # polling a log file: no ROS client in this process
 
 
 def cmd_goal(args: argparse.Namespace) -> int:
@@ -262,9 +317,13 @@ def build_parser() -> argparse.ArgumentParser:
                       help='ROS_DOMAIN_ID of the suite (default: $ROS_DOMAIN_ID or 0)')
     goal.set_defaults(func=cmd_goal)
 
-    from arm_bag.cli import add_analyze_parser
+    from arm_bag.cli import add_analyze_parser, add_bag_parser
 
     add_analyze_parser(sub)
+    add_bag_parser(sub)
+    from arm_sim.sweep import add_sweep_parser
+
+    add_sweep_parser(sub)
     return parser
 
 
