@@ -99,23 +99,53 @@ class ControlLaw:
         """Torque for state (q [rad], qd [rad/s]) and reference (q_des, qd_des,
         qdd_des [rad/s^2]); ``dt`` [s] is the time since the previous call (PID only)."""
         g = self.gains
-        kp, kd = np.asarray(g.kp), np.asarray(g.kd)
-        e, ed = q_des - q, qd_des - qd
-        if self.law == 'pd':
-            raw = kp * e + kd * ed
-        elif self.law == 'pd_gravity':
-            raw = kp * e + kd * ed + self.model.gravity_vector(q)
-        elif self.law == 'computed_torque':
-            raw = self.model.inverse_dynamics(q, qd, qdd_des + kd * ed + kp * e)
-        else:
-            clamp = np.asarray(g.i_clamp)
-            ki = np.asarray(g.ki)
-            integral = np.clip(self.integral + ki * e * dt, -clamp, clamp)
-            raw = kp * e + kd * ed + integral
-            # Conditional integration: keep the old integral where the output saturates
-            # and the error would push it further out.
-            winding = (np.abs(raw) > self._limits) & (np.sign(raw) == np.sign(e))
-            self.integral = np.where(winding, self.integral, integral)
-            raw = kp * e + kd * ed + self.integral
+        raw, self.integral = law_torque(
+            self.law, np.asarray(g.kp), np.asarray(g.kd), np.asarray(g.ki),
+            np.asarray(g.i_clamp), self._limits, self.model, self.integral, q, qd, q_des,
+            qd_des, qdd_des, dt)
         tau = np.clip(raw, -self._limits, self._limits)
         return Command(tau=tau, raw=raw, saturated=np.abs(raw) > self._limits)
+
+
+def law_torque(law: str, kp: np.ndarray, kd: np.ndarray, ki: np.ndarray,
+               i_clamp: np.ndarray, limits: np.ndarray, model, integral: np.ndarray,
+               q: np.ndarray, qd: np.ndarray, q_des: np.ndarray, qd_des: np.ndarray,
+               qdd_des: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The unsaturated torque of ``law`` and the PID integral after this call.
+
+    The formulas of :class:`ControlLaw` (which calls this), for one state or a batch:
+    every array is (2,) or (B, 2) (gains and limits broadcast), ``model`` a
+    :class:`~arm_dynamics.two_link.TwoLinkArm` or, for a batch with one model per row, a
+    :class:`~arm_dynamics.two_link.TwoLinkBatch`.
+
+    Parameters
+    ----------
+    law : one of ``LAWS``
+    kp, kd, ki, i_clamp : gains, units as in :class:`Gains`
+    limits : N m, the effort limits (PID conditional integration)
+    integral : N m, the PID integral term before this call (other laws: returned as is)
+    q, qd : rad, rad/s -- measured state
+    q_des, qd_des, qdd_des : rad, rad/s, rad/s^2 -- reference
+    dt : s, time since the previous call (PID only)
+
+    Returns
+    -------
+    raw : N m, before saturation
+    integral : N m, the new PID integral
+    """
+    e, ed = q_des - q, qd_des - qd
+    if law == 'pd':
+        return kp * e + kd * ed, integral
+    if law == 'pd_gravity':
+        return kp * e + kd * ed + model.gravity_vector(q), integral
+    if law == 'computed_torque':
+        return model.inverse_dynamics(q, qd, qdd_des + kd * ed + kp * e), integral
+    if law != 'pid':
+        raise ValueError(f"law must be one of {', '.join(LAWS)}; got {law!r}")
+    candidate = np.clip(integral + ki * e * dt, -i_clamp, i_clamp)
+    raw = kp * e + kd * ed + candidate
+    # Conditional integration: keep the old integral where the output saturates
+    # and the error would push it further out.
+    winding = (np.abs(raw) > limits) & (np.sign(raw) == np.sign(e))
+    integral = np.where(winding, integral, candidate)
+    return kp * e + kd * ed + integral, integral

@@ -129,6 +129,28 @@ def _fast_floats(q: object, qd: object, tau: object) -> list[float] | None:
     return None
 
 
+def _rk4(acc: Callable, x: Sequence[Any], dt: float, n_steps: int
+         ) -> tuple[Any, Any, Any, Any]:
+    """Classic RK4 with the torque held over each step; ``x`` = (q1, q2, qd1, qd2, t1, t2),
+    floats or arrays (``acc`` as built by :func:`_make_accel`). Returns (q1, q2, qd1, qd2)."""
+    q1, q2, qd1, qd2, t1, t2 = x
+    h2 = 0.5 * dt
+    h6 = dt / 6.0
+    for _ in range(n_steps):
+        a1, b1 = acc(q1, q2, qd1, qd2, t1, t2)
+        p1, p2, v1, v2 = q1 + h2 * qd1, q2 + h2 * qd2, qd1 + h2 * a1, qd2 + h2 * b1
+        a2, b2 = acc(p1, p2, v1, v2, t1, t2)
+        r1, r2, w1, w2 = q1 + h2 * v1, q2 + h2 * v2, qd1 + h2 * a2, qd2 + h2 * b2
+        a3, b3 = acc(r1, r2, w1, w2, t1, t2)
+        s1, s2, u1, u2 = q1 + dt * w1, q2 + dt * w2, qd1 + dt * a3, qd2 + dt * b3
+        a4, b4 = acc(s1, s2, u1, u2, t1, t2)
+        q1 = q1 + h6 * (qd1 + 2.0 * (v1 + w1) + u1)
+        q2 = q2 + h6 * (qd2 + 2.0 * (v2 + w2) + u2)
+        qd1 = qd1 + h6 * (a1 + 2.0 * (a2 + a3) + a4)
+        qd2 = qd2 + h6 * (b1 + 2.0 * (b2 + b3) + b4)
+    return q1, q2, qd1, qd2
+
+
 @dataclass(frozen=True)
 class TwoLinkArm:
     """Planar 2-R arm with point-mass-plus-inertia links and viscous joint damping.
@@ -201,28 +223,6 @@ class TwoLinkArm:
         """The arm from robot parameters by name (missing ones take the defaults, other
         keys are ignored): one construction for simulator, controller and planner."""
         return cls(**{k: params[k] for k in cls.PARAMETERS if k in params})
-
-    # ------------------------------------------------------------------ core formulas
-    def _rk4(self, acc: Callable, x: Sequence[Any], dt: float, n_steps: int
-             ) -> tuple[Any, Any, Any, Any]:
-        """Classic RK4 with the torque held over each step; ``x`` = (q1, q2, qd1, qd2, t1,
-        t2), floats or arrays."""
-        q1, q2, qd1, qd2, t1, t2 = x
-        h2 = 0.5 * dt
-        h6 = dt / 6.0
-        for _ in range(n_steps):
-            a1, b1 = acc(q1, q2, qd1, qd2, t1, t2)
-            p1, p2, v1, v2 = q1 + h2 * qd1, q2 + h2 * qd2, qd1 + h2 * a1, qd2 + h2 * b1
-            a2, b2 = acc(p1, p2, v1, v2, t1, t2)
-            r1, r2, w1, w2 = q1 + h2 * v1, q2 + h2 * v2, qd1 + h2 * a2, qd2 + h2 * b2
-            a3, b3 = acc(r1, r2, w1, w2, t1, t2)
-            s1, s2, u1, u2 = q1 + dt * w1, q2 + dt * w2, qd1 + dt * a3, qd2 + dt * b3
-            a4, b4 = acc(s1, s2, u1, u2, t1, t2)
-            q1 = q1 + h6 * (qd1 + 2.0 * (v1 + w1) + u1)
-            q2 = q2 + h6 * (qd2 + 2.0 * (v2 + w2) + u2)
-            qd1 = qd1 + h6 * (a1 + 2.0 * (a2 + a3) + a4)
-            qd2 = qd2 + h6 * (b1 + 2.0 * (b2 + b3) + b4)
-        return q1, q2, qd1, qd2
 
     # ------------------------------------------------------------------ public API
     def mass_matrix(self, q) -> np.ndarray:
@@ -302,12 +302,12 @@ class TwoLinkArm:
                 x = [*sq, *sqd, *stau]
         if x is not None:
             try:
-                q1, q2, qd1, qd2 = self._rk4(self._acc_float, x, dt, n_steps)
+                q1, q2, qd1, qd2 = _rk4(self._acc_float, x, dt, n_steps)
             except (ValueError, OverflowError):  # math.cos(inf): diverged, as numpy would
                 q1 = q2 = qd1 = qd2 = math.nan
             return np.array((q1, q2)), np.array((qd1, qd2))
         q, qd, tau = (state_array(n, v, 2) for n, v in (('q', q), ('qd', qd), ('tau', tau)))
-        q1, q2, qd1, qd2 = self._rk4(self._acc_array, (q[..., 0], q[..., 1], qd[..., 0],
+        q1, q2, qd1, qd2 = _rk4(self._acc_array, (q[..., 0], q[..., 1], qd[..., 0],
                                      qd[..., 1], tau[..., 0], tau[..., 1]), dt, n_steps)
         q1, q2, qd1, qd2 = np.broadcast_arrays(q1, q2, qd1, qd2)
         return np.stack((q1, q2), -1), np.stack((qd1, qd2), -1)
@@ -485,3 +485,79 @@ class TwoLinkArm:
                     f'singularity_margin {singularity_margin:g} (r = {r:.4f} m; arm almost '
                     f"{'stretched' if self.cos_q2(r) > 0 else 'folded'})")
         return None
+
+
+class TwoLinkBatch:
+    """``B`` two-link arms, each with its own parameters, evaluated and stepped together.
+
+    Row ``i`` of every state array belongs to ``arms[i]``. The formulas are the ones
+    :class:`TwoLinkArm` uses for one state (:func:`_make_accel`, :func:`_make_inverse`,
+    :func:`_rk4`), with each lumped constant an array of ``B`` values, so arm ``i`` gets
+    what ``arms[i]`` gives for that state (to rounding: numpy's ``cos``/``sin`` against
+    ``math``'s). What a parameter sweep steps: plants with different payloads, controllers
+    with different model errors.
+
+    Parameters
+    ----------
+    arms : sequence of B :class:`TwoLinkArm`, B >= 1
+    """
+
+    n_dof = 2
+
+    def __init__(self, arms: Sequence[TwoLinkArm]) -> None:
+        arms = tuple(arms)
+        if not arms:
+            raise ValueError('arms must hold at least one TwoLinkArm, got none')
+        bad = [i for i, a in enumerate(arms) if not isinstance(a, TwoLinkArm)]
+        if bad:
+            raise ValueError(f'arms[{bad[0]}] must be a TwoLinkArm, got {arms[bad[0]]!r}')
+        self.arms = arms
+        k: tuple[Any, ...] = tuple(np.array([a._k[i] for a in arms]) for i in range(7))
+        self._k = k
+        self._acc = _make_accel(k, np.cos, np.sin)
+        self._tau = _make_inverse(k, np.cos, np.sin)
+
+    def __len__(self) -> int:
+        return len(self.arms)
+
+    def _states(self, **arrays: object) -> list[np.ndarray]:
+        """The named arrays checked to be finite with shape (B, 2), as float arrays."""
+        out = []
+        for name, value in arrays.items():
+            arr = state_array(name, value, 2)
+            if arr.shape != (len(self.arms), 2):
+                raise ValueError(f'{name} must have shape ({len(self.arms)}, 2) (one row per '
+                                 f'arm), got {arr.shape}')
+            out.append(arr)
+        return out
+
+    def forward_dynamics(self, q, qd, tau) -> np.ndarray:
+        """qdd (B, 2) [rad/s^2] of each arm from q [rad], qd [rad/s], tau [N m], each (B, 2)."""
+        q, qd, tau = self._states(q=q, qd=qd, tau=tau)
+        return np.stack(self._acc(q[:, 0], q[:, 1], qd[:, 0], qd[:, 1], tau[:, 0],
+                                  tau[:, 1]), -1)
+
+    def inverse_dynamics(self, q, qd, qdd) -> np.ndarray:
+        """tau (B, 2) [N m] = D qdd + C qd + g + B qd of each arm; q, qd, qdd (B, 2)."""
+        q, qd, qdd = self._states(q=q, qd=qd, qdd=qdd)
+        return np.stack(self._tau(q[:, 0], q[:, 1], qd[:, 0], qd[:, 1], qdd[:, 0],
+                                  qdd[:, 1]), -1)
+
+    def gravity_vector(self, q) -> np.ndarray:
+        """g(q) (B, 2) [N m] of each arm at q (B, 2) [rad]."""
+        (q,) = self._states(q=q)
+        g1, g2 = self._k[3:5]
+        gc12 = g2 * np.cos(q[:, 0] + q[:, 1])
+        return np.stack([g1 * np.cos(q[:, 0]) + gc12, gc12], -1)
+
+    def step(self, q, qd, tau, dt: float, n_steps: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """Advance every arm ``n_steps`` RK4 steps of ``dt`` [s] holding its ``tau`` [N m];
+        q, qd, tau (B, 2) [rad, rad/s, N m]. Returns (q, qd), (B, 2) each; a diverging arm
+        gives non-finite rows (no error: the caller decides)."""
+        dt = finite_scalar('dt', dt, minimum=0.0, strict=True)
+        n_steps = step_count('n_steps', n_steps)
+        q, qd, tau = self._states(q=q, qd=qd, tau=tau)
+        with np.errstate(all='ignore'):
+            q1, q2, qd1, qd2 = _rk4(self._acc, (q[:, 0], q[:, 1], qd[:, 0], qd[:, 1],
+                                                tau[:, 0], tau[:, 1]), dt, n_steps)
+        return np.stack((q1, q2), -1), np.stack((qd1, qd2), -1)
