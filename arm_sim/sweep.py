@@ -1004,7 +1004,10 @@ def plot_sweep(spec: Spec, rows: Sequence[dict], path: str | Path) -> Path:
                 ax.annotate(f'effort limit {lim:g} N m', (0.01, lim), color='k',
                             xycoords=('axes fraction', 'data'), va='bottom', fontsize=8)
         ax.set_ylabel(_label(col))
-        ax.grid(alpha=0.3)
+        ax.grid(alpha=0.3, which='both')
+        drawn = [float(r[col]) for r in ok if math.isfinite(float(r[col]))]
+        if drawn and min(drawn) > 0 and max(drawn) > 100 * min(drawn):
+            ax.set_yscale('log')  # spans decades (e.g. mm under one law, m under another)
     if ps.by and groups:
         axes[0, 0].legend(fontsize=8)
     axes[-1, 0].set_xlabel(_label(ps.x))
