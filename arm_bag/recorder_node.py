@@ -6,12 +6,12 @@ chunk and data CRCs on). What it does about loss, in the order a message meets i
 * **Subscribed before the publishers exist.** The suite's topics have known types, so they
   are subscribed when the recorder starts, with the QoS their publishers offer (reliable;
   ``planner/path`` and ``arm_controller/trajectory_status`` transient local). A publisher
-  appearing later is seen at once: the recorder listens to ``ros_discovery_info`` (the
-  message every ROS process sends when its entities change) and looks at the graph then,
-  besides a 0.1 s poll as rosbag2 has. Topics of unknown type (``topics: ['*']`` or your
-  own) are subscribed when their first publisher appears, with its type and QoS; a
-  subscription whose QoS no longer matches every publisher (a best-effort or volatile
-  publisher joined) is made again with the QoS they all offer, as ``ros2 bag record`` does.
+  appearing later is seen at once: each subscription's "matched" event makes the recorder
+  look at the graph then, besides a 0.1 s poll as rosbag2 has. Topics of unknown type
+  (``topics: ['*']`` or your own) are subscribed when their first publisher appears, with
+  its type and QoS; a subscription whose QoS no longer matches every publisher (a
+  best-effort or volatile publisher joined) is made again with the QoS they all offer, as
+  ``ros2 bag record`` does.
 * **Wrong type.** A publisher of another type on a recorded topic is reported
   (``recorder: wrong_type`` on /diagnostics) and the topic goes on being recorded from
   the publishers of its type.
@@ -109,8 +109,6 @@ DISCOVERY_PERIOD = 0.1  # s, wall clock: the fallback poll (rosbag2's default)
 DRAIN_MAX = 5000  # messages taken in one callback before other callbacks get a turn
 LINGER = 1.0  # s (wall) the node stays up after a write failure, to report it
 FIRST_MESSAGE = 'first message on'  # logged once per topic (arm-sim bringup waits on it)
-GRAPH_TOPIC = 'ros_discovery_info'
-GRAPH_TYPE = 'rmw_dds_common/msg/ParticipantEntitiesInfo'
 
 RECORDER_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('output', 'string', '', 'Bag directory to create (required; must not exist)',
@@ -228,13 +226,6 @@ class RecorderNode(Node):
                 self._subscribe(name, self.known[name], [])
         self.create_timer(DISCOVERY_PERIOD, self.discover, clock=steady_clock())
         self.create_timer(p['flush_period'], self.flush, clock=steady_clock())
-        try:
-            graph_qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
-            graph_qos.avoid_ros_namespace_conventions = True
-            self.create_subscription(message_class(GRAPH_TYPE), GRAPH_TOPIC,
-                                     lambda _msg: self.discover(), graph_qos)
-        except (ImportError, AttributeError):
-            pass  # without rmw_dds_common the poll alone finds new publishers
         self.discover()
         self.get_logger().info(
             f"recording to {out} (flush every {p['flush_period']:g} s, chunk "
@@ -247,8 +238,6 @@ class RecorderNode(Node):
             return
         for name, _types in self.get_topic_names_and_types():
             if name in self.skipped or (not self.all_topics and name not in self.resolved):
-                continue
-            if name == '/' + GRAPH_TOPIC:
                 continue
             infos = self.get_publishers_info_by_topic(name)
             if not infos:
@@ -272,7 +261,6 @@ class RecorderNode(Node):
 
     def _check_publishers(self, rec: _Topic, infos, right) -> None:
         rec.publishers = len(right)
-        rec.gaps.graph(len(right))
         for i in infos:
             if i.topic_type != rec.type_name and i.topic_type not in rec.wrong:
                 rec.wrong.add(i.topic_type)
@@ -323,7 +311,8 @@ class RecorderNode(Node):
             from rclpy.event_handler import SubscriptionEventCallbacks
 
             kwargs['event_callbacks'] = SubscriptionEventCallbacks(
-                message_lost=functools.partial(self._lost, rec=rec))
+                message_lost=functools.partial(self._lost, rec=rec),
+                matched=lambda _info: self.discover())  # a publisher came or went
         except ImportError:
             pass
         return self.create_subscription(rec.cls, rec.name,
@@ -346,7 +335,8 @@ class RecorderNode(Node):
 
     # ------------------------------------------------------------------ data
     def _on_message(self, data: bytes, info: dict, *, rec: _Topic) -> None:
-        self._take(rec, data, info)
+        if rec.sub is not None:
+            self._take(rec, rec.sub, data, info)
         self._drain(rec)
 
     def _drain(self, rec: _Topic, limit: int = DRAIN_MAX) -> None:
@@ -361,15 +351,19 @@ class RecorderNode(Node):
                     got = sub.handle.take_message(rec.cls, True)
                     if got is None:
                         return
-                    self._take(rec, got[0], got[1])
+                    self._take(rec, sub, got[0], got[1])
         except InvalidHandle:
             pass  # destroyed while we took: nothing left to take
 
-    def _take(self, rec: _Topic, data: bytes, info: dict) -> None:
+    def _take(self, rec: _Topic, sub: Subscription, data: bytes, info: dict) -> None:
         now = self.get_clock().now().nanoseconds if self.sim_clock else time.time_ns()
         self.received += 1
         rec.received += 1
         seq = int(info.get('publication_sequence_number') or 0)
+        if seq and seq != (rec.gaps.last or -1) + 1:
+            # Not the next number: first tell the counter how many publishers DDS has
+            # matched right now (a publisher is matched before any of its data arrives).
+            rec.gaps.graph(sub.handle.get_publisher_count())
         gap = rec.gaps.message(seq)
         if gap:
             self._count_lost(rec, gap=gap)

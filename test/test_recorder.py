@@ -308,3 +308,54 @@ def test_a_late_publisher_a_wrong_type_and_clock_are_recorded_as_rosbag2_does(
     assert len(qos['/joint_states']) == 1, 'the JointState publisher, not the String one'
     found = statuses(diags, '/recorder', 'wrong_type')[-1]
     assert 'std_msgs/msg/String' in found.message
+
+
+SECOND_PUBLISHER = '''
+import sys, time, rclpy
+from sensor_msgs.msg import JointState
+rclpy.init()
+node = rclpy.create_node('second_publisher')
+pub = node.create_publisher(JointState, 'joint_states', 1000)
+while pub.get_subscription_count() < 2:  # the recorder and the test
+    time.sleep(0.01)
+sys.stdin.readline()  # go
+for i in range(300):
+    pub.publish(JointState(name=['joint1', 'joint2'], position=[1.0, 2.0]))
+    time.sleep(0.0005)
+sys.stdin.read()
+node.destroy_node()
+rclpy.try_shutdown()
+'''
+
+
+def test_two_publishers_interleaving_on_a_topic_are_not_taken_for_loss(ros, launch,
+                                                                        tmp_path):
+    out = tmp_path / 'bag'
+    ghosts = recorder_endpoints(ros)
+    proc = launch('recorder', params={'output': str(out), 'topics': ['joint_states']})
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    received = ros.collect(JointState, 'joint_states', qos=1000)
+    pub = ros.publisher(JointState, 'joint_states', qos=1000)
+    ros.wait_for(lambda: recorder_endpoints(ros) - ghosts and
+                 pub.get_subscription_count() >= 2, 20, 'the recorder to subscribe')
+    # One publisher first, alone: its numbers run 1..100, then the second one joins.
+    for i in range(100):
+        pub.publish(state(i))
+    second = subprocess.Popen([sys.executable, '-c', SECOND_PUBLISHER],
+                              env=node_env(DOMAIN_ID), stdin=subprocess.PIPE)
+    try:
+        ros.wait_for(lambda: ros.node.count_publishers('joint_states') >= 2, 20,
+                     'the second publisher')
+        second.stdin.write(b'go\n')
+        second.stdin.flush()
+        for i, _ in zip(range(100, 400), pace(2000.0)):  # alongside the second one
+            pub.publish(state(i))
+        ros.wait_for(lambda: len(received) >= 700, 30, 'the test to receive all 700')
+        ros.wait_for(lambda: int(recorder_status(diags).get('received /joint_states', 0))
+                     >= 700, 20, 'the recorder to receive all 700')
+    finally:
+        second.communicate(b'', timeout=30)
+    assert proc.stop(signal.SIGINT) == 0, proc.output()
+    meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert 'arm_sim.lost' not in meta['custom_data'], meta['custom_data']
+    assert len(read_bag(out).joint_states) == 700

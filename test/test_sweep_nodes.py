@@ -26,6 +26,9 @@ def test_a_sweep_point_has_the_metrics_of_the_same_scenario_through_the_nodes(ro
     states, _, goals = connect(ros)
     refs = ros.collect(JointState, 'arm_controller/reference', qos=1000)
     diags = ros.collect(DiagnosticArray, '/diagnostics')
+    # The reference stream must reach this test before the motion: a subscription not yet
+    # matched with the controller would miss the references the comparison needs.
+    ros.wait_for(lambda: refs, 30, 'the reference stream')
     assert ros.set_params('/planner', mode='straight_line', duration=DURATION,
                           time_scaling='quintic')[0].successful
     pause = ros.pause_simulator_now(diags)
