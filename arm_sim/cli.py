@@ -82,9 +82,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
     print(f'  bag:     {bag}/  (rosbag2, MCAP: {next(bag.glob("*.mcap")).name})')
     print(f'  picture: {picture}')
     print(f'  table again: arm-sim analyze {bag} [--plot FILE.png] [--json]')
-    print('  Foxglove: Open local file -> the .mcap; PlotJuggler: Load data -> the .mcap '
-          '(plot /joint_states/position[0] against /arm_controller/reference/position[0]); '
-          f'ROS 2: ros2 bag info {bag}')
+    print('  Foxglove: Open local file -> the .mcap, import config/foxglove/arm_layout.json; '
+          'PlotJuggler: Load data -> the .mcap, load config/plotjuggler/arm_layout.xml (or '
+          'plot /joint_states/joint1/position against '
+          f'/arm_controller/reference/joint1/position); ROS 2: ros2 bag info {bag}')
     return 0
 
 
@@ -324,6 +325,9 @@ def build_parser() -> argparse.ArgumentParser:
     from arm_sim.sweep import add_sweep_parser
 
     add_sweep_parser(sub)
+    from arm_sim.urdf_cli import add_urdf_parser
+
+    add_urdf_parser(sub)
     return parser
 
 

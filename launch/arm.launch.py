@@ -3,6 +3,7 @@
     ros2 launch arm_sim arm.launch.py
     ros2 launch arm_sim arm.launch.py namespace:=arm2 timing_mode:=lockstep record:=false
     ros2 launch arm_sim arm.launch.py composed:=true     # simulator + controller, one process
+    ros2 launch arm_sim arm.launch.py rviz:=true         # + robot_state_publisher and RViz 2
     ros2 launch arm_sim arm.launch.py --show-args
 
 The simulator is the clock source: it publishes ``clock`` relative to its namespace, so
@@ -10,6 +11,12 @@ every node remaps ``/clock`` to ``clock``, which resolves to ``/<namespace>/cloc
 ``/clock`` without a namespace) and keeps two arms in two namespaces on separate clocks. A
 remap target is expanded in the node's namespace, so this works whether ``namespace`` is
 given as ``arm2`` or ``/arm2``.
+
+``robot_state_publisher:=true`` adds robot_state_publisher with ``robot_description`` made
+from params_file's robot parameters (``arm-sim urdf`` prints the same URDF), publishing the
+frames base_link, link1, link2 and tool0 from ``joint_states``; ``rviz:=true`` adds it too
+and RViz 2 with config/rviz/arm.rviz. Both run in ``namespace`` with ``/tf`` remapped to
+``tf`` there, so two arms keep two trees.
 """
 
 from __future__ import annotations
@@ -27,10 +34,13 @@ from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
 from arm_dynamics.timing import TIMING_MODES  # the one list of modes
+from arm_sim.urdf_cli import urdf_for_params_file  # the URDF arm-sim urdf prints
 
 PACKAGE = 'arm_sim'
 # Topic names are relative: '/clock' -> 'clock' lands in the node's namespace.
 CLOCK_REMAP = [('/clock', 'clock')]
+# The same for the transform tree of robot_state_publisher and RViz.
+TF_REMAP = [('/tf', 'tf'), ('/tf_static', 'tf_static')]
 
 namespace = LaunchConfiguration('namespace')
 params_file = LaunchConfiguration('params_file')
@@ -39,6 +49,8 @@ timing_mode = LaunchConfiguration('timing_mode')
 bag = LaunchConfiguration('bag')
 record = LaunchConfiguration('record')
 composed = LaunchConfiguration('composed')
+rviz = LaunchConfiguration('rviz')
+robot_state_publisher = LaunchConfiguration('robot_state_publisher')
 
 
 def _arguments() -> list[DeclareLaunchArgument]:
@@ -75,6 +87,16 @@ def _arguments() -> list[DeclareLaunchArgument]:
             description='Run simulator and controller in one process with one executor '
                         '(executable "composed"): holds real time at 1 kHz control. Their '
                         'settings then come from params_file (and timing_mode) only.'),
+        DeclareLaunchArgument(
+            'robot_state_publisher', default_value='false', choices=['true', 'false'],
+            description='Start robot_state_publisher with robot_description made from '
+                        'params_file\'s robot parameters (the URDF arm-sim urdf prints): '
+                        'the frames base_link, link1, link2, tool0 from joint_states.'),
+        DeclareLaunchArgument(
+            'rviz', default_value='false', choices=['true', 'false'],
+            description='Start RViz 2 with config/rviz/arm.rviz (robot model, planned path, '
+                        'markers; its 2D Goal Pose tool sends goal_pose), and '
+                        'robot_state_publisher, which it needs.'),
     ]
 
 
@@ -99,6 +121,34 @@ def _loop(context: LaunchContext) -> list[Node]:
             _sim_time_node('controller')]
 
 
+def _visualization(context: LaunchContext) -> list[Node]:
+    """robot_state_publisher (``robot_state_publisher`` or ``rviz`` true) with the URDF of
+    params_file's robot parameters, and RViz 2 with the shipped config (``rviz`` true).
+
+    Both follow ``use_sim_time`` like the controller: the transforms carry the joint
+    states' simulated stamps.
+    """
+    show = rviz.perform(context) == 'true'
+    if not (show or robot_state_publisher.perform(context) == 'true'):
+        return []
+    sim_time = {'use_sim_time': ParameterValue(use_sim_time, value_type=bool)}
+    description = urdf_for_params_file(params_file.perform(context))
+    nodes = [Node(package='robot_state_publisher', executable='robot_state_publisher',
+                  name='robot_state_publisher', namespace=namespace,
+                  parameters=[{'robot_description': ParameterValue(description,
+                                                                   value_type=str)},
+                              sim_time],
+                  remappings=CLOCK_REMAP + TF_REMAP, output='screen')]
+    if show:
+        config = os.path.join(get_package_share_directory(PACKAGE), 'config', 'rviz',
+                              'arm.rviz')
+        nodes.append(Node(package='rviz2', executable='rviz2', name='rviz2',
+                          namespace=namespace, arguments=['-d', config],
+                          parameters=[sim_time], remappings=CLOCK_REMAP + TF_REMAP,
+                          output='screen'))
+    return nodes
+
+
 def _sim_time_node(executable: str, **kwargs) -> Node:
     """A node of the suite that runs on simulated time (when use_sim_time is true)."""
     extra = kwargs.pop('parameters', [])
@@ -117,4 +167,5 @@ def generate_launch_description() -> LaunchDescription:
         _sim_time_node('recorder',
                        parameters=[{'output': ParameterValue(bag, value_type=str)}],
                        condition=IfCondition(record)),
+        OpaqueFunction(function=_visualization),
     ])

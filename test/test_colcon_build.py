@@ -124,6 +124,9 @@ def test_colcon_installs_the_ament_python_layout(workspace: Path):
             f'{colcon_log(workspace)}')
     for rel in [f'share/{PACKAGE}/package.xml', f'share/{PACKAGE}/config/arm.yaml',
                 f'share/{PACKAGE}/launch/arm.launch.py',
+                f'share/{PACKAGE}/config/rviz/arm.rviz',
+                f'share/{PACKAGE}/config/foxglove/arm_layout.json',
+                f'share/{PACKAGE}/config/plotjuggler/arm_layout.xml',
                 f'share/ament_index/resource_index/packages/{PACKAGE}',
                 # Written by colcon's ament_python support only, not by setup.py.
                 f'share/{PACKAGE}/hook/ament_prefix_path.dsv']:

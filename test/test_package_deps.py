@@ -55,7 +55,8 @@ OPTIONAL = {
 
 #: exec_depends no module imports, with the reason they are there anyway.
 NOT_IMPORTED: dict[str, str] = {
-    'rmw_dds_common': 'the recorder subscribes ros_discovery_info, imported by type name',
+    'robot_state_publisher': 'launch/arm.launch.py starts it (robot_state_publisher:=true)',
+    'rviz2': 'launch/arm.launch.py starts it with config/rviz/arm.rviz (rviz:=true)',
 }
 
 

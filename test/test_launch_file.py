@@ -1,0 +1,123 @@
+"""launch/arm.launch.py, checked without ROS's launch packages (PyPI has none): it compiles,
+declares its arguments, and, run against stand-ins for ``launch`` / ``launch_ros`` that
+record what they are given, starts robot_state_publisher with the generated URDF and RViz
+with the shipped config only when asked to."""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+import sys
+import types
+from pathlib import Path
+
+import pytest
+
+from arm_sim.urdf_cli import urdf_for_params_file
+
+ROOT = Path(__file__).resolve().parents[1]
+LAUNCH_FILE = ROOT / 'launch' / 'arm.launch.py'
+CONFIG = ROOT / 'config' / 'arm.yaml'
+
+
+class Recorded:
+    """Any launch class: keeps its arguments."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        self.args, self.kwargs = args, kwargs
+
+
+class LaunchConfiguration(Recorded):
+    def perform(self, context: dict) -> str:
+        return context[self.args[0]]
+
+
+def stand_ins() -> dict[str, types.ModuleType]:
+    mods = {}
+    for name, attrs in {
+        'ament_index_python': {}, 'launch': {}, 'launch_ros': {},
+        'ament_index_python.packages': {'get_package_share_directory': lambda _: str(ROOT)},
+        'launch.actions': {'DeclareLaunchArgument': type('DeclareLaunchArgument',
+                                                         (Recorded,), {}),
+                           'OpaqueFunction': type('OpaqueFunction', (Recorded,), {})},
+        'launch.conditions': {'IfCondition': type('IfCondition', (Recorded,), {})},
+        'launch.launch_context': {'LaunchContext': dict},
+        'launch.launch_description': {'LaunchDescription': type('LaunchDescription',
+                                                                (Recorded,), {})},
+        'launch.substitutions': {'LaunchConfiguration': LaunchConfiguration},
+        'launch_ros.actions': {'Node': type('Node', (Recorded,), {})},
+        'launch_ros.parameter_descriptions': {'ParameterValue': type('ParameterValue',
+                                                                     (Recorded,), {})},
+    }.items():
+        mod = types.ModuleType(name)
+        mod.__dict__.update(attrs)
+        mods[name] = mod
+    return mods
+
+
+@pytest.fixture
+def launch_module(monkeypatch):
+    for name, mod in stand_ins().items():
+        monkeypatch.setitem(sys.modules, name, mod)
+    spec = importlib.util.spec_from_file_location('arm_launch', LAUNCH_FILE)
+    assert spec and spec.loader
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def declared(module) -> dict[str, dict]:
+    description = module.generate_launch_description()
+    return {a.args[0]: a.kwargs for a in description.args[0]
+            if type(a).__name__ == 'DeclareLaunchArgument'}
+
+
+def visualization_nodes(module, **given: str) -> list:
+    context = {'rviz': 'false', 'robot_state_publisher': 'false', 'params_file': str(CONFIG),
+               **given}
+    opaque = [a for a in module.generate_launch_description().args[0]
+              if type(a).__name__ == 'OpaqueFunction'
+              and a.kwargs['function'].__name__ == '_visualization']
+    assert len(opaque) == 1
+    return opaque[0].kwargs['function'](context)
+
+
+def test_the_launch_file_compiles_and_names_the_new_arguments():
+    source = LAUNCH_FILE.read_text()
+    compile(source, str(LAUNCH_FILE), 'exec')
+    names = {node.args[0].value for node in ast.walk(ast.parse(source))
+             if isinstance(node, ast.Call) and getattr(node.func, 'id', '') ==
+             'DeclareLaunchArgument' and isinstance(node.args[0], ast.Constant)}
+    assert {'rviz', 'robot_state_publisher', 'namespace', 'params_file', 'record',
+            'composed', 'timing_mode', 'use_sim_time', 'bag'} <= names
+
+
+def test_rviz_and_robot_state_publisher_are_optional_booleans_off_by_default(launch_module):
+    args = declared(launch_module)
+    for name in ('rviz', 'robot_state_publisher'):
+        assert args[name]['default_value'] == 'false'
+        assert args[name]['choices'] == ['true', 'false']
+        assert args[name]['description']
+    assert visualization_nodes(launch_module) == []
+
+
+def test_robot_state_publisher_gets_the_urdf_of_the_params_file(launch_module):
+    (rsp,) = visualization_nodes(launch_module, robot_state_publisher='true')
+    assert (rsp.kwargs['package'], rsp.kwargs['executable']) == ('robot_state_publisher',
+                                                                 'robot_state_publisher')
+    description = rsp.kwargs['parameters'][0]['robot_description']
+    assert description.args[0] == urdf_for_params_file(CONFIG)
+    assert description.kwargs['value_type'] is str  # never read as YAML by launch_ros
+    assert ('/tf', 'tf') in rsp.kwargs['remappings']
+    assert ('/clock', 'clock') in rsp.kwargs['remappings']
+
+
+def test_rviz_starts_with_the_shipped_config_and_the_robot_state_publisher(launch_module):
+    rsp, rviz = visualization_nodes(launch_module, rviz='true')
+    assert rsp.kwargs['executable'] == 'robot_state_publisher'
+    assert (rviz.kwargs['package'], rviz.kwargs['executable']) == ('rviz2', 'rviz2')
+    flag, config = rviz.kwargs['arguments']
+    assert flag == '-d' and Path(config) == ROOT / 'config' / 'rviz' / 'arm.rviz'
+    assert Path(config).is_file()
+    assert rviz.kwargs['namespace'] is launch_module.namespace
+    assert ('/tf', 'tf') in rviz.kwargs['remappings']
