@@ -31,28 +31,52 @@ def add_analyze_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument('--plot', metavar='FILE.png', default=None,
                    help='also write a PNG: joint angles vs reference, torques, end-effector '
                    'path vs line, deviation over time')
+    p.add_argument('--dask', metavar='SCHEDULER_ADDRESS', default=None,
+                   help='analyse the bags on a Dask distributed cluster (e.g. '
+                   'tcp://10.0.0.5:8786; needs the dask extra; every worker must see the '
+                   'bag paths); the reports equal a local run')
     p.set_defaults(func=run_analyze)
     return p
 
 
-def run_analyze(args: argparse.Namespace) -> int:
-    """Run ``analyze``; returns the exit code (never raises for bad input)."""
+def analyze_one(path: str) -> tuple[str, object]:
+    """``('ok', report)`` or ``(kind, message)`` for one bag, kind ``unreadable`` or
+    ``nothing``: the exceptions as values, so a Dask worker can return them too."""
     from arm_bag.analysis import NothingToAnalyse, analyze
     from arm_bag.reader import BagError
 
-    reports, code = [], EXIT_OK
-    for path in args.bags:
+    try:
+        return 'ok', analyze(path)
+    except BagError as exc:
+        return 'unreadable', str(exc)
+    except NothingToAnalyse as exc:
+        return 'nothing', f'nothing to analyse: {exc}'
+    except (OSError, MemoryError) as exc:
+        return 'unreadable', f'{path}: cannot read: {exc}'
+
+
+def run_analyze(args: argparse.Namespace) -> int:
+    """Run ``analyze``; returns the exit code (never raises for bad input)."""
+    if getattr(args, 'dask', None):
+        from arm_common.cluster import ClusterError, dask_map
+
         try:
-            reports.append(analyze(path))
-        except BagError as exc:
+            outcomes = dask_map(args.dask, analyze_one, list(args.bags))
+        except ClusterError as exc:
             print(f'arm-sim analyze: {exc}', file=sys.stderr)
-            code = max(code, EXIT_UNREADABLE)
-        except NothingToAnalyse as exc:
-            print(f'arm-sim analyze: nothing to analyse: {exc}', file=sys.stderr)
-            code = max(code, EXIT_NOTHING) if code != EXIT_UNREADABLE else code
-        except (OSError, MemoryError) as exc:
-            print(f'arm-sim analyze: {path}: cannot read: {exc}', file=sys.stderr)
+            return EXIT_USAGE
+    else:
+        outcomes = [analyze_one(path) for path in args.bags]
+    reports, code = [], EXIT_OK
+    for kind, value in outcomes:
+        if kind == 'ok':
+            reports.append(value)
+            continue
+        print(f'arm-sim analyze: {value}', file=sys.stderr)
+        if kind == 'unreadable':
             code = EXIT_UNREADABLE
+        elif code != EXIT_UNREADABLE:
+            code = max(code, EXIT_NOTHING)
     for rep in reports:
         for w in rep.warnings:
             print(f'warning: {w}', file=sys.stderr)

@@ -96,7 +96,6 @@ PROFILES = ('synchronized', 'set_point')
 ELBOWS = ('down', 'up')
 STATUSES = ('ok', 'refused', 'diverged')
 VARIANT = 'variant'       # the axis whose values are bundles of settings
-DASK_CONNECT_TIMEOUT = 10.0  # s (wall) to reach a Dask scheduler
 
 
 class SpecError(ValueError):
@@ -903,22 +902,13 @@ def run_sweep(scenarios: Sequence[Scenario], *, workers: int = 2,
 
 
 def _run_dask(address: str, chunks: list, take: Callable[[list[dict]], None]) -> None:
-    """Run the chunks on the Dask cluster at ``address`` (imports dask only here)."""
+    """Run the chunks on the Dask cluster at ``address`` (imports dask only there)."""
+    from arm_common.cluster import ClusterError, dask_map
+
     try:
-        from distributed import Client, as_completed
-    except ImportError:
-        raise SpecError('--dask needs dask and distributed: pip install '
-                        "'arm_sim[dask]' (or dask distributed)") from None
-    try:
-        client = Client(address, timeout=DASK_CONNECT_TIMEOUT)
-    except (OSError, TimeoutError, ValueError) as exc:
-        raise SpecError(f'cannot reach the Dask scheduler at {address}: {exc}') from None
-    try:
-        futures = client.map(_rows_of, chunks, pure=False)
-        for f in as_completed(futures):
-            take(f.result())
-    finally:
-        client.close()
+        dask_map(address, _rows_of, chunks, on_result=lambda _i, rows: take(rows))
+    except ClusterError as exc:
+        raise SpecError(str(exc)) from None
 
 
 # ---------------------------------------------------------------------- output

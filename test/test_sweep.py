@@ -15,6 +15,7 @@ import pytest
 from arm_bag.analysis import analyze
 from arm_bag.synthetic import ROBOT as BAG_ROBOT
 from arm_bag.synthetic import open_bag, write_run
+from arm_common import cluster
 from arm_control.laws import LAWS, ControlLaw, Gains, law_torque
 from arm_dynamics.two_link import TwoLinkArm, TwoLinkBatch
 from arm_sim import sweep
@@ -313,24 +314,46 @@ def test_a_local_sweep_does_not_import_dask(tmp_path):
     assert done.returncode == 0, done.stderr
 
 
+def small_bag(path: Path) -> Path:
+    """A bag with one regulation segment (synthetic: no ROS)."""
+    w, ch = open_bag(path)
+    t = np.arange(200) * 0.01
+    goal = np.array([0.4, -0.3])
+    q = goal + 0.2 * np.exp(-t / 0.3)[:, None]
+    write_run(w, ch, 1000, t, q, np.gradient(q, t, axis=0), 5 * (goal - q),
+              np.tile(goal, (len(t), 1)), (np.array([q[0], goal]), np.array([0.0, 1.0])))
+    w.close()
+    return path
+
+
 @pytest.mark.timeout(180)
-def test_a_dask_cluster_gives_the_rows_the_local_run_gives():
+def test_a_dask_cluster_gives_the_rows_and_the_analyses_a_local_run_gives(tmp_path, capsys):
     distributed = pytest.importorskip('distributed')
     scenarios = MIX[:6]
     local = run_sweep(scenarios, workers=1, chunk_size=2)
-    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                       dashboard_address=None)
+    bags = [str(small_bag(tmp_path / 'a')), str(tmp_path / 'missing'),
+            str(small_bag(tmp_path / 'b'))]
+    code = main(['analyze', *bags, '--json'])
+    local_out = capsys.readouterr()
+    local_cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1,
+                                             processes=True, dashboard_address=None)
     try:
-        remote = run_sweep(scenarios, dask=cluster.scheduler_address, chunk_size=2)
+        remote = run_sweep(scenarios, dask=local_cluster.scheduler_address, chunk_size=2)
+        remote_code = main(['analyze', *bags, '--json', '--dask',
+                            local_cluster.scheduler_address])
+        remote_out = capsys.readouterr()
     finally:
-        cluster.close()
+        local_cluster.close()
     for a, b in zip(local, remote):
         assert_rows_close(a, b, 0.0)
+    assert code == remote_code == 4, 'the missing bag: exit 4 either way'
+    assert remote_out.out == local_out.out and json.loads(remote_out.out)
+    assert remote_out.err == local_out.err
 
 
 def test_an_unreachable_dask_scheduler_is_one_line(tmp_path, capsys, monkeypatch):
     pytest.importorskip('distributed')
-    monkeypatch.setattr(sweep, 'DASK_CONNECT_TIMEOUT', 1.0)
+    monkeypatch.setattr(cluster, 'CONNECT_TIMEOUT', '1s')
     spec = write_spec(tmp_path, SMALL)
     assert main(['sweep', str(spec), '--quiet', '--dask', 'tcp://127.0.0.1:9']) == 1
     err = capsys.readouterr().err

@@ -58,5 +58,5 @@ def test_a_sweep_point_has_the_metrics_of_the_same_scenario_through_the_nodes(ro
     for key, value in got.items():
         mine = [row[f'{key}_1'], row[f'{key}_2']] if f'{key}_1' in row else [row[key]]
         theirs = np.atleast_1d(np.array(value, dtype=float))
-        assert np.allclose(theirs, mine, rtol=0, atol=1e-6, equal_nan=True), (
+        assert np.allclose(theirs, mine, rtol=0, atol=1e-9, equal_nan=True), (
             f'{key}: nodes {theirs} vs sweep {mine}')
