@@ -34,9 +34,11 @@ setup(
                 'ros-jazzy-rmw-fastrtps-cpp', 'ros-jazzy-std-srvs'],
         'core': ['numpy', 'scipy', 'mcap', 'pyyaml', 'matplotlib', 'zstandard', 'lz4'],
         'test': ['pytest', 'pytest-timeout', 'ruff', 'mypy', 'colcon-common-extensions',
-                 'rosbags', 'mcap-ros2-support', 'dask', 'distributed', 'yourdfpy', 'pin'],
+                 'rosbags', 'mcap-ros2-support', 'dask', 'distributed', 'yourdfpy', 'pin',
+                 'foxglove-sdk', 'websockets'],  # test/test_live.py: server and client
         'bench': ['pin', 'mujoco'],
         'dask': ['dask', 'distributed'],
+        'foxglove': ['foxglove-sdk'],  # arm-sim bringup/demo --foxglove (the live node)
     },
     zip_safe=True,
     maintainer='arm_sim developers',
@@ -51,6 +53,8 @@ setup(
             'planner = arm_planner.planner_node:main',
             'recorder = arm_bag.recorder_node:main',
             'composed = arm_sim.composed:main',
+            'live = arm_sim.live_node:main',
+            'visualizer = arm_sim.visualizer_node:main',
             'arm-sim = arm_sim.cli:main',
         ],
     },

@@ -99,11 +99,13 @@ KNOWN_TOPICS = {
     'arm_controller/trajectory_status': 'diagnostic_msgs/msg/DiagnosticStatus',
     'goal_pose': 'geometry_msgs/msg/PoseStamped',
     'planner/path': 'nav_msgs/msg/Path',
+    'markers': 'visualization_msgs/msg/MarkerArray',
+    'robot_description': 'std_msgs/msg/String',
     'clock': 'rosgraph_msgs/msg/Clock',
     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
 }
 #: Known topics whose publishers are transient local (latched).
-LATCHED = frozenset({'planner/path', 'arm_controller/trajectory_status'})
+LATCHED = frozenset({'planner/path', 'arm_controller/trajectory_status', 'robot_description'})
 DEFAULT_TOPICS = list(KNOWN_TOPICS)
 DISCOVERY_PERIOD = 0.1  # s, wall clock: the fallback poll (rosbag2's default)
 DRAIN_MAX = 5000  # messages taken in one callback before other callbacks get a turn

@@ -64,7 +64,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     started = time.monotonic()
     print(f'arm-sim demo: regulation and straight-line tracking on the simulated 2-R arm '
           f'(output in {out}/)')
-    demo = Demo(out, domain, fast=args.fast, slow=args.slow)
+    demo = Demo(out, domain, fast=args.fast, slow=args.slow, foxglove=args.foxglove)
     try:
         bag = demo.run()
     except SuiteError as exc:
@@ -99,10 +99,14 @@ def cmd_bringup(args: argparse.Namespace) -> int:
     (out / 'logs').mkdir(parents=True, exist_ok=True)
     ns = args.namespace
     loop = ['composed'] if args.composed else ['simulator', 'controller']
-    nodes = loop + ['planner'] + (['recorder'] if args.record else [])
+    # The visualizer publishes markers and robot_description (recorded too).
+    nodes = loop + ['planner'] + (['recorder'] if args.record else []) + ['visualizer']
     overrides = {'simulator': {'simulator': {'timing_mode': args.timing_mode}},
                  'recorder': {'recorder': {'output': str(out / 'bag')}}}
     overrides['composed'] = overrides['simulator']  # per node, by node name
+    if args.foxglove is not None:  # the Foxglove bridge first: it sees the suite from the start
+        nodes.insert(0, 'live')
+        overrides['live'] = {'live': {'port': args.foxglove}}
     procs: list = []
 
     def start(name: str) -> None:
@@ -129,6 +133,9 @@ def cmd_bringup(args: argparse.Namespace) -> int:
         else:
             for name in nodes:
                 start(name)
+        live = [p for p in procs if p.name == 'live']
+        if live:
+            _wait_log(live[0], 'serving ws://')
     except BaseException:  # a refusal, or Ctrl-C while starting: stop what runs
         for p in procs:
             p.stop(signal.SIGINT)
@@ -138,6 +145,9 @@ def cmd_bringup(args: argparse.Namespace) -> int:
           f'(namespace {ns or "/"}, simulator {args.timing_mode}); logs in {out}/logs')
     print(f'  send goals from another terminal: ROS_DOMAIN_ID={domain} arm-sim goal X Y '
           f'[--mode straight_line]{" --namespace " + ns if ns else ""}')
+    if args.foxglove is not None:
+        print(f'  Foxglove: open connection -> {_served_url(procs)} (localhost), then import '
+              'the layout config/foxglove/arm_layout.json')
     print('  stop with Ctrl-C')
     try:
         while all(p.alive() for p in procs):
@@ -157,6 +167,18 @@ def cmd_bringup(args: argparse.Namespace) -> int:
     if args.record:
         print(f'bag: {out / "bag"}  (arm-sim analyze {out / "bag"})')
     return 0
+
+
+def _served_url(procs: list) -> str:
+    """The ``ws://HOST:PORT`` the ``live`` node logged it serves (its actual port)."""
+    import re
+
+    for p in procs:
+        if p.name == 'live':
+            found = re.search(r'serving (ws://\S+)', p.output())
+            if found:
+                return found.group(1).replace('127.0.0.1', 'localhost')
+    return 'ws://localhost'
 
 
 def _wait_log(proc, text: str, timeout: float = 30.0) -> None:
@@ -258,6 +280,15 @@ def build_parser() -> argparse.ArgumentParser:
         'Runs the nodes as processes; no ros2 command line needed.')
     sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
 
+    def foxglove_arg(p):
+        from arm_sim.live import DEFAULT_PORT
+
+        p.add_argument('--foxglove', type=int, nargs='?', const=DEFAULT_PORT, default=None,
+                       metavar='PORT',
+                       help='also serve the topics to Foxglove over WebSocket on '
+                       f'ws://localhost:PORT (default {DEFAULT_PORT}; 0 = a free port): '
+                       "the live node (setup.py extra 'foxglove')")
+
     def domain_arg(p):
         p.add_argument('--domain-id', type=int, default=None,
                        help='ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID, else a private one '
@@ -265,7 +296,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser(
         'demo', help='run the lecture tasks, record them and print the analysis',
-        description='Start simulator (lockstep), controller, planner and recorder; move the '
+        description='Start simulator (lockstep), controller, planner, recorder and visualizer '
+        '(markers, robot_description); move the '
         'tip from Ps to Pf (regulation), then along the straight line Pf -> Ps slowly and '
         'fast under computed torque, and fast under plain PD. Prints how much torque, how '
         'much deviation and how long to settle, and writes a report picture.')
@@ -273,6 +305,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help='output directory (default runs/demo-<time>)')
     demo.add_argument('--fast', type=float, default=0.8,
                       help='duration of the fast straight line [s] (default 0.8)')
+    foxglove_arg(demo)
     demo.add_argument('--slow', type=float, default=3.0,
                       help='duration of the slow straight line [s] (default 3)')
     domain_arg(demo)
@@ -280,8 +313,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     bring = sub.add_parser(
         'bringup', help='start the suite and keep it running (Ctrl-C stops it)',
-        description='Start simulator, controller, planner (and recorder) with '
-        'config/arm.yaml and wait; drive it with arm-sim goal.')
+        description='Start simulator, controller, planner, visualizer (markers and '
+        'robot_description) and recorder with config/arm.yaml and wait; drive it with '
+        'arm-sim goal.')
     bring.add_argument('--timing-mode', default='real_time', choices=TIMING_MODES,
                        help='simulator timing: real_time (default: wall-clock speed, for '
                        'watching and driving by hand) or lockstep (deterministic, as fast as '
@@ -293,6 +327,7 @@ def build_parser() -> argparse.ArgumentParser:
     bring.add_argument('--namespace', default='', help='namespace for all nodes and topics')
     bring.add_argument('--no-record', dest='record', action='store_false',
                        help='do not start the recorder')
+    foxglove_arg(bring)
     bring.add_argument('--out', default=None,
                        help='output directory (default runs/bringup-<time>)')
     domain_arg(bring)

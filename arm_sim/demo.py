@@ -1,10 +1,10 @@
 """``arm-sim demo``: the lecture's two tasks on the simulated arm, recorded and analysed.
 
-Starts simulator (lockstep), controller, planner and recorder as separate processes with
-``config/arm.yaml``, then drives a fixed scenario. Every goal takes effect at an exact
-simulated time: the simulator pauses there (``pause_at``), the goal is planned from the
-paused state and the controller accepts it before time moves on, so two runs record the
-same joint states.
+Starts simulator (lockstep), controller, planner, recorder and visualizer (markers and
+robot_description, recorded too) as separate processes with ``config/arm.yaml``, then
+drives a fixed scenario. Every goal takes effect at an exact simulated time: the simulator
+pauses there (``pause_at``), the goal is planned from the paused state and the controller
+accepts it before time moves on, so two runs record the same joint states.
 """
 
 from __future__ import annotations
@@ -83,8 +83,9 @@ class Demo:
     """Runs the scenario; ``out`` gets ``bag/``, ``report.png`` and ``logs/``."""
 
     def __init__(self, out: Path, domain_id: int, fast: float, slow: float,
-                 echo=print) -> None:
+                 echo=print, foxglove: int | None = None) -> None:
         self.out = out
+        self.foxglove = foxglove  # port of the live node (Foxglove WebSocket); None: none
         self.domain = domain_id
         self.echo = echo
         self.config = config_file()
@@ -111,9 +112,12 @@ class Demo:
         """Run everything; returns the bag directory."""
         (self.out / 'logs').mkdir(parents=True, exist_ok=True)
         bag = self.out / 'bag'
-        self.echo(f'starting simulator, controller, planner and recorder (ROS domain '
-                  f'{self.domain}, localhost only; logs in {self.out / "logs"})')
+        self.echo(f'starting simulator, controller, planner, recorder and visualizer (ROS '
+                  f'domain {self.domain}, localhost only; logs in {self.out / "logs"})')
+        if self.foxglove is not None:  # first: Foxglove sees the run from its start
+            self._start('live', port=self.foxglove)
         self._start('recorder', output=str(bag))
+        self._start('visualizer')
         self._start('simulator', timing_mode='lockstep', pause_at=0.05)
         self._start('planner')
         client = SuiteClient(self.domain)
@@ -139,8 +143,16 @@ class Demo:
 
     def _drive(self, c: SuiteClient) -> None:
         wait = 30.0
+        if self.foxglove is not None:
+            live = next(p for p in self.procs if p.name == 'live')
+            c.spin_until(lambda: 'serving ws://' in live.output(), wait,
+                         'the live node to serve Foxglove', self._alive)
+            url = live.output().split('serving ', 1)[1].split()[0]
+            self.echo(f'Foxglove: open connection -> {url.replace("127.0.0.1", "localhost")}'
+                      ', then import the layout config/foxglove/arm_layout.json')
         needed = [('recorder', t) for t in DEFAULT_TOPICS] + [
-            ('planner', 'joint_states'), ('planner', 'goal_pose')]
+            ('planner', 'joint_states'), ('planner', 'goal_pose'),
+            ('visualizer', 'joint_states')]
         for node, topic in needed:
             c.spin_until(functools.partial(c.subscribed, topic, node), wait,
                          f'the {node} to subscribe {topic}', self._alive)

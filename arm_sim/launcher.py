@@ -22,6 +22,8 @@ MODULES = {
     'planner': 'arm_planner.planner_node',
     'recorder': 'arm_bag.recorder_node',
     'composed': 'arm_sim.composed',  # simulator + controller in one process
+    'live': 'arm_sim.live_node',  # the Foxglove WebSocket bridge (--foxglove)
+    'visualizer': 'arm_sim.visualizer_node',  # markers and robot_description
 }
 
 

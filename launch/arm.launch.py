@@ -1,9 +1,11 @@
-"""Start the arm_sim suite on a ROS 2 Jazzy install: simulator, controller, planner, recorder.
+"""Start the arm_sim suite on a ROS 2 Jazzy install: simulator, controller, planner, recorder,
+visualizer.
 
     ros2 launch arm_sim arm.launch.py
     ros2 launch arm_sim arm.launch.py namespace:=arm2 timing_mode:=lockstep record:=false
     ros2 launch arm_sim arm.launch.py composed:=true     # simulator + controller, one process
     ros2 launch arm_sim arm.launch.py rviz:=true         # + robot_state_publisher and RViz 2
+    ros2 launch arm_sim arm.launch.py visualizer:=false  # no markers, no robot_description
     ros2 launch arm_sim arm.launch.py --show-args
 
 The simulator is the clock source: it publishes ``clock`` relative to its namespace, so
@@ -17,6 +19,10 @@ from params_file's robot parameters (``arm-sim urdf`` prints the same URDF), pub
 frames base_link, link1, link2 and tool0 from ``joint_states``; ``rviz:=true`` adds it too
 and RViz 2 with config/rviz/arm.rviz. Both run in ``namespace`` with ``/tf`` remapped to
 ``tf`` there, so two arms keep two trees.
+
+``visualizer:=true`` (the default) starts the visualizer: ``markers`` (the arm, its trail, the
+goal and the planned path) and ``robot_description``; when robot_state_publisher runs, that
+publishes ``robot_description`` and the visualizer leaves it out.
 """
 
 from __future__ import annotations
@@ -51,6 +57,7 @@ record = LaunchConfiguration('record')
 composed = LaunchConfiguration('composed')
 rviz = LaunchConfiguration('rviz')
 robot_state_publisher = LaunchConfiguration('robot_state_publisher')
+visualizer = LaunchConfiguration('visualizer')
 
 
 def _arguments() -> list[DeclareLaunchArgument]:
@@ -60,7 +67,7 @@ def _arguments() -> list[DeclareLaunchArgument]:
     return [
         DeclareLaunchArgument(
             'namespace', default_value='',
-            description='ROS namespace of all four nodes and their topics (e.g. arm2 or '
+            description='ROS namespace of all the nodes and their topics (e.g. arm2 or '
                         '/arm2); empty: the root namespace.'),
         DeclareLaunchArgument(
             'params_file', default_value=default_params,
@@ -97,6 +104,11 @@ def _arguments() -> list[DeclareLaunchArgument]:
             description='Start RViz 2 with config/rviz/arm.rviz (robot model, planned path, '
                         'markers; its 2D Goal Pose tool sends goal_pose), and '
                         'robot_state_publisher, which it needs.'),
+        DeclareLaunchArgument(
+            'visualizer', default_value='true', choices=['true', 'false'],
+            description='Start the visualizer: markers (visualization_msgs/MarkerArray of '
+                        'the arm, its tip trail, the goal and the planned path) and '
+                        'robot_description (left to robot_state_publisher when it runs).'),
     ]
 
 
@@ -149,6 +161,17 @@ def _visualization(context: LaunchContext) -> list[Node]:
     return nodes
 
 
+def _visualizer(context: LaunchContext) -> list[Node]:
+    """The visualizer (``visualizer`` true); it publishes ``robot_description`` unless
+    robot_state_publisher does (``robot_state_publisher`` or ``rviz`` true), so the topic
+    has one publisher."""
+    if visualizer.perform(context) != 'true':
+        return []
+    rsp = 'true' in (robot_state_publisher.perform(context), rviz.perform(context))
+    return [_sim_time_node('visualizer',
+                           parameters=[{'publish_robot_description': not rsp}])]
+
+
 def _sim_time_node(executable: str, **kwargs) -> Node:
     """A node of the suite that runs on simulated time (when use_sim_time is true)."""
     extra = kwargs.pop('parameters', [])
@@ -168,4 +191,5 @@ def generate_launch_description() -> LaunchDescription:
                        parameters=[{'output': ParameterValue(bag, value_type=str)}],
                        condition=IfCondition(record)),
         OpaqueFunction(function=_visualization),
+        OpaqueFunction(function=_visualizer),
     ])

@@ -24,7 +24,7 @@ os.environ['ROS_DOMAIN_ID'] = str(DOMAIN_ID)
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 
-NODE_EXES = ('simulator', 'controller', 'planner', 'recorder')
+NODE_EXES = ('simulator', 'controller', 'planner', 'recorder', 'visualizer', 'live')
 
 
 def proc_dirs():
@@ -122,6 +122,17 @@ def leaves_nothing_behind():
         Path('/dev/shm', name).unlink(missing_ok=True)
     kept = (shm_files() - shm_before) & shm_holders(session_only=True) - own_shm_files()
     assert not kept, f'/dev/shm files still held by processes of this session: {sorted(kept)}'
+
+
+def goal_msg(x: float, y: float, frame: str = 'base_link'):
+    """A geometry_msgs/PoseStamped goal for the tip at (x, y) [m] in ``frame``."""
+    from geometry_msgs.msg import PoseStamped
+
+    msg = PoseStamped()
+    msg.header.frame_id = frame
+    msg.pose.position.x, msg.pose.position.y = float(x), float(y)
+    msg.pose.orientation.w = 1.0
+    return msg
 
 
 def statuses(diags: list, node: str, task: str | None = None) -> list:

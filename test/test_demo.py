@@ -175,3 +175,84 @@ def test_a_stalled_controller_is_reported_in_the_demo_output(demo_runs):
     quiet = analyze(demo_runs['quiet'][0] / 'bag').to_dict()['segments']
     stalled = analyze(demo_runs['stalled'][0] / 'bag').to_dict()['segments']
     assert stalled == quiet, 'the same table'
+
+
+def decoded_with_own_schemas(bag: Path, topics: tuple[str, ...]) -> dict[str, list]:
+    """The messages of ``topics`` in ``bag``, decoded by rosbags with the types the bag's
+    own schemas define (an empty typestore: nothing else known), each also decodable with
+    rosbags' Jazzy types."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    own, jazzy = get_typestore(Stores.EMPTY), get_typestore(Stores.ROS2_JAZZY)
+    out: dict[str, list] = {t: [] for t in topics}
+    with Reader(bag) as reader:
+        conns = [c for c in reader.connections if c.topic in topics]
+        for conn in conns:
+            own.register(get_types_from_msg(conn.msgdef.data, conn.msgtype))
+        for conn, _, raw in reader.messages(connections=conns):
+            jazzy.deserialize_cdr(raw, conn.msgtype)
+            out[conn.topic].append(own.deserialize_cdr(raw, conn.msgtype))
+    return out
+
+
+def check_bag_markers(out: Path) -> int:
+    """Every recorded MarkerArray is the forward kinematics (1e-9 m) of the recorded joint
+    state of its stamp, its trail the tip over the 2 s of states before it, its path a
+    recorded planner/path; robot_description is the URDF of the demo's parameters. Returns
+    how many MarkerArrays were checked."""
+    from arm_dynamics.urdf import urdf_from_params
+    from arm_sim.demo import start_pose
+    from arm_sim.launcher import config_file
+    from arm_sim.urdf_cli import robot_params_from_file
+
+    msgs = decoded_with_own_schemas(out / 'bag', ('/markers', '/robot_description',
+                                                  '/joint_states', '/planner/path'))
+    (description,) = msgs['/robot_description']
+    assert description.data == urdf_from_params(robot_params_from_file(config_file()))
+    arm = start_pose(config_file())[0]
+    l1 = arm.link_lengths[0]
+    states = {m.header.stamp.sec * 10**9 + m.header.stamp.nanosec: np.array(m.position)
+              for m in msgs['/joint_states']}
+    stamps = np.array(sorted(states))
+    paths = [np.array([[p.pose.position.x, p.pose.position.y] for p in m.poses])
+             for m in msgs['/planner/path']]
+    arrays = msgs['/markers']
+    assert len(arrays) >= 20, 'markers throughout the run'
+    shown = {'goal': 0, 'path': 0}
+    for array in arrays:
+        m = {k.ns: k for k in array.markers}
+        assert set(m) == {'links', 'joints', 'tip', 'trail', 'goal', 'path'}
+        t = m['links'].header.stamp.sec * 10**9 + m['links'].header.stamp.nanosec
+        assert all(k.header.frame_id == 'base_link' for k in array.markers)
+        q = states[t]  # a recorded joint state has this very stamp
+        tip = arm.forward_kinematics(q)
+        elbow = l1 * np.array([np.cos(q[0]), np.sin(q[0])])
+
+        def xy(marker) -> np.ndarray:
+            return np.array([[p.x, p.y] for p in marker.points]).reshape(-1, 2)
+
+        assert np.abs(xy(m['links']) - [[0.0, 0.0], elbow, elbow, tip]).max() < 1e-9
+        assert np.abs(xy(m['joints']) - [[0.0, 0.0], elbow]).max() < 1e-9
+        p = m['tip'].pose.position
+        assert np.abs([p.x - tip[0], p.y - tip[1]]).max() < 1e-9
+        window = stamps[(stamps >= t - 2_000_000_000) & (stamps <= t)]
+        trail = xy(m['trail'])
+        expected = arm.forward_kinematics(np.array([states[s] for s in window]))
+        if len(window) < 2:  # the first state: no line yet
+            assert m['trail'].action == 2 and not len(trail)  # DELETE
+        else:
+            assert trail.shape == expected.shape and np.abs(trail - expected).max() < 1e-9
+        for ns in shown:
+            shown[ns] += m[ns].action == 0  # ADD
+        if m['path'].action == 0:
+            assert any(len(pp) == len(xy(m['path'])) and np.abs(pp - xy(m['path'])).max()
+                       < 1e-9 for pp in paths), 'a planned path'
+    assert shown['goal'] and shown['path'], 'goals and paths shown'
+    return len(arrays)
+
+
+@pytest.mark.parametrize('label', ['quiet', 'loaded', 'stalled'])
+def test_the_demo_bag_holds_markers_of_the_recorded_states_and_the_robot_description(
+        demo_runs, label):
+    assert check_bag_markers(demo_runs[label][0]) >= 20

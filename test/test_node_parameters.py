@@ -113,7 +113,8 @@ def test_numeric_parameters_describe_their_range(ros, launch):
     assert '[Hz]' in got['publish_rate'].description
 
 
-@pytest.mark.parametrize('node', ['simulator', 'controller', 'planner', 'recorder'])
+@pytest.mark.parametrize('node', ['simulator', 'controller', 'planner', 'recorder',
+                                  'visualizer'])
 def test_ros2_param_dump_output_loads_back_unchanged(node, ros, launch, tmp_path):
     bag = tmp_path / 'bag'
     params = {'output': str(bag)} if node == 'recorder' else None

@@ -35,6 +35,7 @@ ROSDEP_KEYS = {
     'std_msgs': 'std_msgs',
     'std_srvs': 'std_srvs',
     'trajectory_msgs': 'trajectory_msgs',
+    'visualization_msgs': 'visualization_msgs',
     'ament_index_python': 'ament_index_python',
     'launch': 'launch',
     'launch_ros': 'launch_ros',
@@ -51,6 +52,7 @@ ROSDEP_KEYS = {
 #: Optional imports (a setup.py extra, imported only when asked for): no run dependency.
 OPTIONAL = {
     'distributed': "arm-sim sweep --dask only (setup.py extra 'dask')",
+    'foxglove': "arm-sim bringup/demo --foxglove only (setup.py extra 'foxglove')",
 }
 
 #: exec_depends no module imports, with the reason they are there anyway.

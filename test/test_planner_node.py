@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import events, statuses
+from conftest import events, goal_msg, statuses
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
@@ -40,14 +40,6 @@ def joint_feed(ros):
     timer = ros.node.create_timer(0.02, tick)
     yield feed
     ros.node.destroy_timer(timer)
-
-
-def goal_msg(x: float, y: float, frame: str = 'base_link') -> PoseStamped:
-    msg = PoseStamped()
-    msg.header.frame_id = frame
-    msg.pose.position.x, msg.pose.position.y = x, y
-    msg.pose.orientation.w = 1.0
-    return msg
 
 
 def diag_texts(diags: list, task: str | None = None) -> list[str]:

@@ -374,7 +374,7 @@ def test_a_killed_bringup_takes_its_nodes_with_it_and_its_bag_is_closed(ros, tmp
         ros.wait_for(lambda: states and stamp(states[-1]) > 0.2, timeout=30,
                      what='the suite to run')
         nodes = node_children(proc.pid)
-        assert len(nodes) == 4, nodes
+        assert len(nodes) == 5, nodes  # simulator, controller, planner, recorder, visualizer
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait()

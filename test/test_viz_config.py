@@ -23,7 +23,7 @@ SUITE_TOPICS = {t.lstrip('/') for t in KNOWN_TOPICS}
 #: Topics of the ROS tools the launch file adds (robot_state_publisher).
 TOOL_TOPICS = {'robot_description', 'tf', 'tf_static'}
 #: Shown before any node publishes it, with the reason.
-PENDING = {'markers': 'visualization_msgs/MarkerArray of the arm (issue 12, a later part)'}
+PENDING: dict[str, str] = {}
 #: Foxglove's own output: the layout's user script.
 SCRIPT_OUTPUT = '/studio_script/arm_tip'
 

@@ -1,0 +1,381 @@
+"""Live view without a ROS install: the suite's topics over the Foxglove WebSocket protocol.
+
+The pure half of the ``live`` node (:mod:`arm_sim.live_node`, no rclpy here): a
+:class:`Bridge` around the ``foxglove-sdk`` WebSocket server (module ``foxglove``, setup.py
+extra ``foxglove``, imported only when a bridge is made) and the computations it needs.
+
+* **ROS topics as channels**, as foxglove_bridge advertises them: topic = the resolved ROS
+  name (``/joint_states``), message encoding ``cdr``, schema name = the ROS type
+  (``sensor_msgs/msg/JointState``), schema encoding ``ros2msg``, schema text from
+  :func:`arm_bag.msgdefs.schema_text`. Messages are forwarded as the raw CDR bytes, never
+  deserialised. A latched topic's latest message is sent again when a client subscribes.
+* **The robot**, as Foxglove's 3D panel draws it: the URDF (``/robot_description``,
+  ``std_msgs/msg/String``, latched) and the frames ``base_link -> link1 -> link2 -> tool0``
+  from each joint state (:func:`arm_transforms`, the arm's own kinematics) as
+  ``foxglove.FrameTransforms`` on ``/tf``.
+* **Client publishing**: a client-advertised channel on ``goal_pose``
+  (``geometry_msgs/msg/PoseStamped``, ``cdr`` or ``json``; Foxglove's "Publish pose" tool)
+  is handed to the node, which publishes it into ROS. Other client channels are refused
+  with a status message to the clients.
+* **Time**: the server advertises the ``time`` capability and the node broadcasts
+  simulated time (the latest ``clock``), as foxglove_bridge does with ``use_sim_time``, so
+  the 3D panel's time is the joint states' stamps' time.
+
+The SDK calls the listener from its own threads; they only queue work (:meth:`Bridge.poll`
+takes it on the caller's thread), so every ROS call stays on the node's thread.
+
+References: Foxglove WebSocket protocol v1 (``foxglove.websocket.v1``: advertise,
+subscribe, clientAdvertise, clientMessageData); the ``foxglove.FrameTransforms`` schema;
+the OMG CDR encapsulation (XCDR1, little endian) rosbag2 and rmw use.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import queue
+import struct
+import threading
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, cast
+
+from arm_bag.msgdefs import schema_text
+from arm_dynamics.two_link import TwoLinkArm
+
+#: The port Foxglove connects to by default (``ws://localhost:8765``).
+DEFAULT_PORT = 8765
+#: WebSocket subprotocol of the Foxglove WebSocket protocol.
+SUBPROTOCOL = 'foxglove.websocket.v1'
+#: Topics forwarded besides the recorder's (:data:`arm_bag.recorder_node.KNOWN_TOPICS`),
+#: relative to the node's namespace, with their types.
+EXTRA_TOPICS = {
+    'markers': 'visualization_msgs/msg/MarkerArray',
+    'robot_description': 'std_msgs/msg/String',
+}
+#: Extra topics whose publishers are transient local (latched).
+EXTRA_LATCHED = frozenset({'robot_description'})
+DESCRIPTION_TOPIC = 'robot_description'
+TF_TOPIC = 'tf'  # relative: /tf in the root namespace, as robot_state_publisher's
+GOAL_TOPIC = 'goal_pose'
+GOAL_TYPE = 'geometry_msgs/msg/PoseStamped'
+#: Encodings the server accepts from publishing clients, preferred first (Foxglove
+#: publishes in the first one it supports).
+CLIENT_ENCODINGS = ('cdr', 'json')
+#: Frames, as the URDF names them (:mod:`arm_dynamics.urdf`).
+FRAMES = ('base_link', 'link1', 'link2', 'tool0')
+#: CDR encapsulation header: XCDR1, little endian, no options.
+CDR_HEADER = b'\x00\x01\x00\x00'
+
+
+# ---------------------------------------------------------------------- kinematics
+@dataclass(frozen=True)
+class Transform:
+    """The pose of ``child`` in ``parent``: ``translation`` [m] (x, y, z) and ``rotation``
+    a unit quaternion (x, y, z, w)."""
+
+    parent: str
+    child: str
+    translation: tuple[float, float, float]
+    rotation: tuple[float, float, float, float]
+
+
+def _about_z(angle: float) -> tuple[float, float, float, float]:
+    """Unit quaternion (x, y, z, w) of a rotation by ``angle`` [rad] about +z."""
+    return (0.0, 0.0, math.sin(angle / 2), math.cos(angle / 2))
+
+
+def arm_transforms(arm: TwoLinkArm, q: Sequence[float]) -> list[Transform]:
+    """The URDF's frame tree at joint positions ``q`` [rad].
+
+    ``base_link -> link1`` rotates by ``q1`` at the origin, ``link1 -> link2`` by ``q2`` at
+    the elbow and ``link2 -> tool0`` is fixed at the tip, each child's x axis along its
+    link (:mod:`arm_dynamics.urdf`). The elbow is at ``l1`` along link 1 and ``tool0`` at
+    the tip of :meth:`TwoLinkArm.forward_kinematics` expressed in ``link2`` (``(l2, 0, 0)``
+    to rounding), so composing the three gives that tip.
+
+    Raises
+    ------
+    ValueError
+        ``q`` is not two finite angles.
+    """
+    qa = [float(v) for v in q]
+    if len(qa) != 2 or not all(math.isfinite(v) for v in qa):
+        raise ValueError(f'q must be two finite joint positions [rad], got {list(q)}')
+    q1, q2 = qa
+    tip = arm.forward_kinematics([q1, q2])
+    l1 = float(arm.link_lengths[0])
+    elbow = (l1 * math.cos(q1), l1 * math.sin(q1))
+    # The tip in link2's frame: rotate (tip - elbow) back by q1 + q2.
+    dx, dy = float(tip[0]) - elbow[0], float(tip[1]) - elbow[1]
+    c, s = math.cos(q1 + q2), math.sin(q1 + q2)
+    return [
+        Transform(FRAMES[0], FRAMES[1], (0.0, 0.0, 0.0), _about_z(q1)),
+        Transform(FRAMES[1], FRAMES[2], (l1, 0.0, 0.0), _about_z(q2)),
+        Transform(FRAMES[2], FRAMES[3], (c * dx + s * dy, -s * dx + c * dy, 0.0),
+                  (0.0, 0.0, 0.0, 1.0)),
+    ]
+
+
+def joint_positions(names: Sequence[str], positions: Sequence[float],
+                    joint_names: Sequence[str]) -> list[float] | None:
+    """The positions [rad] of ``joint_names`` in a JointState's ``names``/``positions``;
+    None when one is missing (a state of other joints)."""
+    index = {n: i for i, n in enumerate(names)}
+    if not all(n in index and index[n] < len(positions) for n in joint_names):
+        return None
+    return [float(positions[index[n]]) for n in joint_names]
+
+
+# ---------------------------------------------------------------------- messages
+def cdr_string(text: str) -> bytes:
+    """A ``std_msgs/msg/String`` serialised as CDR (XCDR1, little endian)."""
+    raw = text.encode('utf-8')
+    return CDR_HEADER + struct.pack('<I', len(raw) + 1) + raw + b'\x00'
+
+
+@dataclass(frozen=True)
+class GoalPose:
+    """A ``geometry_msgs/msg/PoseStamped`` from a JSON client: stamp [s, ns], frame, position
+    [m] (x, y, z) and orientation (x, y, z, w)."""
+
+    sec: int
+    nanosec: int
+    frame_id: str
+    position: tuple[float, float, float]
+    orientation: tuple[float, float, float, float]
+
+
+def _numbers(d: Any, keys: str, what: str) -> tuple[float, ...]:
+    if not isinstance(d, Mapping):
+        raise ValueError(f'{what} must be an object with {", ".join(keys)}')
+    out = []
+    for k in keys:
+        v = d.get(k, 1.0 if k == 'w' else 0.0)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ValueError(f'{what}.{k} must be a finite number, got {v!r}')
+        out.append(float(v))
+    return tuple(out)
+
+
+def pose_from_json(data: bytes | str) -> GoalPose:
+    """Read a PoseStamped a client sent JSON-encoded (ROS 2 ``nanosec`` or ROS 1 ``nsec``
+    stamps; missing fields take the message's defaults).
+
+    Raises
+    ------
+    ValueError
+        Not JSON, or a field of the wrong kind (named).
+    """
+    try:
+        doc = json.loads(data)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ValueError(f'not JSON: {exc}') from None
+    if not isinstance(doc, Mapping):
+        raise ValueError('a PoseStamped must be a JSON object')
+    header = doc.get('header') or {}
+    stamp = header.get('stamp') or {} if isinstance(header, Mapping) else None
+    if not isinstance(header, Mapping) or not isinstance(stamp, Mapping):
+        raise ValueError('header.stamp must be an object with sec and nanosec')
+    sec, nsec = stamp.get('sec', 0), stamp.get('nanosec', stamp.get('nsec', 0))
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in (sec, nsec)):
+        raise ValueError(f'header.stamp must hold integers, got {dict(stamp)!r}')
+    frame = header.get('frame_id', '')
+    if not isinstance(frame, str):
+        raise ValueError(f'header.frame_id must be a string, got {frame!r}')
+    pose = doc.get('pose') or {}
+    if not isinstance(pose, Mapping):
+        raise ValueError('pose must be an object with position and orientation')
+    position = _numbers(pose.get('position') or {}, 'xyz', 'pose.position')
+    orientation = _numbers(pose.get('orientation') or {}, 'xyzw', 'pose.orientation')
+    return GoalPose(int(sec), int(nsec), frame,
+                    (position[0], position[1], position[2]),
+                    (orientation[0], orientation[1], orientation[2], orientation[3]))
+
+
+def goal_channel_refusal(topic: str, goal_topic: str, encoding: str,
+                         schema_name: str) -> str | None:
+    """Why a client channel cannot be published into ROS (None: it can): only
+    ``goal_topic`` (resolved, e.g. ``/goal_pose``; the name without its leading slash is
+    accepted too), as a PoseStamped in one of :data:`CLIENT_ENCODINGS`."""
+    if topic not in (goal_topic, goal_topic.lstrip('/')):
+        return f'only {goal_topic} can be published into ROS, not {topic!r}'
+    if encoding not in CLIENT_ENCODINGS:
+        return (f'{topic}: encoding {encoding!r} is not accepted (accepted: '
+                f'{", ".join(CLIENT_ENCODINGS)})')
+    if schema_name and schema_name.replace('/msg/', '/') != GOAL_TYPE.replace('/msg/', '/'):
+        return f'{topic}: schema {schema_name!r} is not {GOAL_TYPE}'
+    return None
+
+
+# ---------------------------------------------------------------------- the server
+@dataclass(frozen=True)
+class ClientMessage:
+    """A message a client published on an accepted channel: ``encoding`` ``cdr`` (``data``
+    the serialised PoseStamped) or ``json``."""
+
+    client: int
+    topic: str
+    encoding: str
+    data: bytes
+
+
+class Bridge:
+    """The Foxglove WebSocket server and its channels (see the module docstring).
+
+    Parameters
+    ----------
+    host : address to listen on (``127.0.0.1``: this machine only)
+    port : TCP port, 0 for a free one (:attr:`port` tells which)
+    goal_topic : resolved name of the topic clients may publish (``/goal_pose``)
+    name : server name shown by Foxglove
+
+    Raises
+    ------
+    ImportError
+        foxglove-sdk is not installed.
+    OSError
+        The port cannot be bound (the SDK's reason).
+    """
+
+    def __init__(self, host: str = '127.0.0.1', port: int = DEFAULT_PORT,
+                 goal_topic: str = '/' + GOAL_TOPIC, name: str = 'arm_sim') -> None:
+        import foxglove
+        from foxglove.websocket import Capability
+
+        self._fox = foxglove
+        self.goal_topic = goal_topic
+        self.context = foxglove.Context()
+        self.channels: dict[str, Any] = {}
+        self.latched: set[str] = set()
+        self.last: dict[str, tuple[bytes, int]] = {}  # latched topic -> (data, log time)
+        self.resend: set[str] = set()
+        self.incoming: queue.SimpleQueue[ClientMessage | str] = queue.SimpleQueue()
+        self._lock = threading.Lock()
+        self._client_channels: dict[tuple[int, int], tuple[str, str]] = {}
+        self._topic_of_id: dict[int, str] = {}
+        try:
+            self.server = foxglove.start_server(
+                name=name, host=host, port=port, context=self.context,
+                capabilities=[Capability.ClientPublish, Capability.Time],
+                supported_encodings=list(CLIENT_ENCODINGS),
+                server_listener=cast(Any, self))  # the callbacks it uses, below
+        except RuntimeError as exc:
+            raise OSError(f'cannot serve on {host}:{port}: {exc}') from None
+        self.host = host
+        self.port = int(self.server.port)
+        self._tf: Any = None  # the FrameTransforms channel, made at the first use
+
+    @property
+    def url(self) -> str:
+        """``ws://HOST:PORT`` clients connect to."""
+        return f'ws://{self.host}:{self.port}'
+
+    # ------------------------------------------------------------ server -> clients
+    def add_ros_channel(self, topic: str, type_name: str, latched: bool = False) -> None:
+        """Advertise ROS topic ``topic`` (resolved name) of ``type_name`` as foxglove_bridge
+        does (``cdr``, ``ros2msg``). Raises
+        :class:`~arm_bag.msgdefs.MessageDefinitionError` when the type's definition is not
+        installed."""
+        schema = self._fox.Schema(name=type_name, encoding='ros2msg',
+                                  data=schema_text(type_name).encode())
+        channel = self._fox.Channel(topic, schema=schema, message_encoding='cdr',
+                                    context=self.context)
+        with self._lock:
+            self.channels[topic] = channel
+            self._topic_of_id[channel.id()] = topic
+            if latched:
+                self.latched.add(topic)
+
+    def forward(self, topic: str, data: bytes, log_time: int) -> None:
+        """Send one serialised message of ``topic`` at ``log_time`` [ns] to subscribers."""
+        channel = self.channels[topic]
+        if topic in self.latched:
+            with self._lock:
+                self.last[topic] = (data, log_time)
+        channel.log(data, log_time=log_time)
+
+    def send_transforms(self, transforms: Sequence[Transform], stamp_ns: int,
+                        topic: str = '/' + TF_TOPIC) -> None:
+        """Send ``transforms`` stamped ``stamp_ns`` [ns] as ``foxglove.FrameTransforms``."""
+        from foxglove.channels import FrameTransformsChannel
+        from foxglove.messages import (
+            FrameTransform,
+            FrameTransforms,
+            Quaternion,
+            Timestamp,
+            Vector3,
+        )
+
+        if self._tf is None:
+            self._tf = FrameTransformsChannel(topic, context=self.context)
+        sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+        stamp = Timestamp(sec=sec, nsec=nsec)
+        msg = FrameTransforms(transforms=[
+            FrameTransform(timestamp=stamp, parent_frame_id=t.parent,
+                           child_frame_id=t.child,
+                           translation=Vector3(x=t.translation[0], y=t.translation[1],
+                                               z=t.translation[2]),
+                           rotation=Quaternion(x=t.rotation[0], y=t.rotation[1],
+                                               z=t.rotation[2], w=t.rotation[3]))
+            for t in transforms])
+        self._tf.log(msg, log_time=int(stamp_ns))
+
+    def broadcast_time(self, stamp_ns: int) -> None:
+        """Tell clients the current (simulated) time [ns]."""
+        self.server.broadcast_time(int(stamp_ns))
+
+    def status(self, message: str, warning: bool = True) -> None:
+        """Show ``message`` to every client."""
+        level = self._fox.StatusLevel.Warning if warning else self._fox.StatusLevel.Info
+        self.server.publish_status(message, level)
+
+    def poll(self, limit: int = 1000) -> list[ClientMessage | str]:
+        """Send latched topics again to new subscribers, and return what clients sent
+        since the last call (a :class:`ClientMessage`, or a str: a refusal to report),
+        at most ``limit`` items."""
+        with self._lock:
+            again = [(t, self.last[t]) for t in self.resend if t in self.last]
+            self.resend.clear()
+        for topic, (data, log_time) in again:
+            self.channels[topic].log(data, log_time=log_time)
+        out: list[ClientMessage | str] = []
+        for _ in range(limit):
+            try:
+                out.append(self.incoming.get_nowait())
+            except queue.Empty:
+                break
+        return out
+
+    def stop(self) -> None:
+        """Stop the server (clients are disconnected)."""
+        self.server.stop()
+
+    # ------------------------------------------------------------ listener (SDK threads)
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        with self._lock:
+            topic = self._topic_of_id.get(channel.id)
+            if topic in self.latched:
+                self.resend.add(topic)
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        return None
+
+    def on_client_advertise(self, client: Any, channel: Any) -> None:
+        refusal = goal_channel_refusal(channel.topic, self.goal_topic, channel.encoding,
+                                       channel.schema_name)
+        if refusal:
+            self.incoming.put(f'client {client.id}: {refusal}')
+            return
+        with self._lock:
+            self._client_channels[(client.id, channel.id)] = (channel.topic, channel.encoding)
+
+    def on_client_unadvertise(self, client: Any, client_channel_id: int) -> None:
+        with self._lock:
+            self._client_channels.pop((client.id, client_channel_id), None)
+
+    def on_message_data(self, client: Any, client_channel_id: int, data: bytes) -> None:
+        with self._lock:
+            known = self._client_channels.get((client.id, client_channel_id))
+        if known is not None:
+            self.incoming.put(ClientMessage(client.id, known[0], known[1], bytes(data)))

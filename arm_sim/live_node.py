@@ -1,0 +1,198 @@
+"""``live`` node: the suite's topics served to Foxglove over WebSocket (no ROS install).
+
+Thin ROS shell around :class:`arm_sim.live.Bridge` (foxglove-sdk, setup.py extra
+``foxglove``). It subscribes the suite's topics raw (the recorder's
+:data:`~arm_bag.recorder_node.KNOWN_TOPICS`, plus ``markers`` and ``robot_description``),
+forwards each message's CDR bytes on its channel at its receive time on simulated time
+(the latest ``clock``; the server also broadcasts that time, as foxglove_bridge does with
+``use_sim_time``), and adds what Foxglove's 3D panel needs to draw the arm:
+
+* ``/robot_description`` (``std_msgs/msg/String``, latched): the URDF made from the robot
+  parameters (:mod:`arm_dynamics.urdf`), replaced by what a ROS publisher of
+  ``robot_description`` sends, if any;
+* ``/tf`` (``foxglove.FrameTransforms``): ``base_link -> link1 -> link2 -> tool0`` from
+  each joint state, stamped with its header stamp (:func:`arm_sim.live.arm_transforms`).
+
+A client's ``goal_pose`` (PoseStamped, ``cdr`` or ``json``: Foxglove's "Publish pose") is
+published into ROS on ``goal_pose``. Start it with ``arm-sim bringup --foxglove [PORT]`` or
+``arm-sim demo --foxglove [PORT]``; it logs ``serving ws://HOST:PORT`` once clients can
+connect. A port that cannot be bound is refused (exit 2).
+"""
+
+from __future__ import annotations
+
+import functools
+
+from geometry_msgs.msg import PoseStamped
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+
+from arm_bag.msgdefs import MessageDefinitionError
+from arm_bag.recorder_node import KNOWN_TOPICS, LATCHED, message_class
+from arm_common.node import (
+    ConfigError,
+    clock_in_namespace,
+    declare_parameters,
+    run_node,
+    steady_clock,
+)
+from arm_common.params import ParamSpec
+from arm_dynamics.robot import ROBOT_PARAMS
+from arm_dynamics.two_link import TwoLinkArm
+from arm_dynamics.urdf import urdf_from_params
+from arm_sim.live import (
+    DEFAULT_PORT,
+    DESCRIPTION_TOPIC,
+    EXTRA_LATCHED,
+    EXTRA_TOPICS,
+    GOAL_TOPIC,
+    TF_TOPIC,
+    Bridge,
+    ClientMessage,
+    arm_transforms,
+    cdr_string,
+    joint_positions,
+    pose_from_json,
+)
+
+SUMMARY = '''
+Serves the suite's topics over the Foxglove WebSocket protocol (foxglove-sdk): each topic
+as a channel (cdr, ros2msg schema), raw CDR forwarded at its receive time on simulated time;
+/robot_description (the URDF from the robot parameters) and /tf (foxglove.FrameTransforms
+base_link -> link1 -> link2 -> tool0 from the joint states) for the 3D panel; a client's
+goal_pose (Publish pose) is published into ROS. Connect Foxglove to ws://localhost:PORT.
+'''
+LIVE_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec('port', 'int', DEFAULT_PORT, 'TCP port of the WebSocket server (0: a free one, '
+              'logged)', minimum=0, maximum=65535, read_only=True),
+    ParamSpec('host', 'string', '127.0.0.1', 'Address the server listens on (127.0.0.1: this '
+              'machine only)', read_only=True),
+)
+POLL_PERIOD = 0.02  # s (wall): how often client messages and new subscriptions are handled
+QUEUE_DEPTH = 100  # messages each subscription keeps
+
+
+class LiveNode(Node):
+    """See the module docstring."""
+
+    def __init__(self) -> None:
+        super().__init__('live', cli_args=clock_in_namespace())
+        p = declare_parameters(self, ROBOT_PARAMS + LIVE_PARAMS)
+        robot = {s.name: p[s.name] for s in ROBOT_PARAMS}
+        try:
+            urdf = urdf_from_params(robot)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        self.arm = TwoLinkArm.from_params(robot)
+        self.joint_names = list(robot['joint_names'])
+        self.goal_topic = self.resolve_topic_name(GOAL_TOPIC)
+        try:
+            self.bridge = Bridge(p['host'], p['port'], goal_topic=self.goal_topic)
+        except OSError as exc:
+            raise ConfigError(str(exc)) from None
+        self.sim_ns = 0
+        self.tf_topic = self.resolve_topic_name(TF_TOPIC)
+        self.description = self.resolve_topic_name(DESCRIPTION_TOPIC)
+        self.states = self.resolve_topic_name('joint_states')
+        self.clock = self.resolve_topic_name('clock')
+        topics = {**KNOWN_TOPICS, **EXTRA_TOPICS}
+        latched = {self.resolve_topic_name(t) for t in LATCHED | EXTRA_LATCHED}
+        self.subs = []
+        for rel, type_name in topics.items():
+            name = self.resolve_topic_name(rel)
+            try:
+                cls = message_class(type_name)
+                self.bridge.add_ros_channel(name, type_name, latched=name in latched)
+            except (ImportError, AttributeError, MessageDefinitionError) as exc:
+                self.get_logger().warn(f'not serving {name}: type {type_name} unavailable: '
+                                       f'{exc}')
+                continue
+            qos = QoSProfile(depth=QUEUE_DEPTH, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=(DurabilityPolicy.TRANSIENT_LOCAL if name in latched
+                                         else DurabilityPolicy.VOLATILE))
+            self.subs.append(self.create_subscription(
+                cls, name, functools.partial(self._on_message, topic=name), qos, raw=True))
+        if self.description in self.bridge.channels:
+            self.bridge.forward(self.description, cdr_string(urdf), 0)
+        self.goals = self.create_publisher(PoseStamped, GOAL_TOPIC, 10)
+        self.create_timer(POLL_PERIOD, self.poll, clock=steady_clock())
+        self.get_logger().info(f'serving {self.bridge.url} (Foxglove WebSocket; '
+                               f'{len(self.bridge.channels)} topics, {self.tf_topic}, client '
+                               f'publishing on {self.goal_topic})')
+
+    def _on_message(self, data: bytes, *, topic: str) -> None:
+        if topic == self.clock:
+            stamp = deserialize_message(data, Clock).clock
+            self.sim_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+            self.bridge.broadcast_time(self.sim_ns)
+        self.bridge.forward(topic, data, self.sim_ns)
+        if topic == self.states:
+            self._transforms(data)
+
+    def _transforms(self, data: bytes) -> None:
+        msg = deserialize_message(data, JointState)
+        q = joint_positions(msg.name, msg.position, self.joint_names)
+        if q is None:
+            return
+        try:
+            tfs = arm_transforms(self.arm, q)
+        except ValueError:
+            return  # a non-finite state: nothing to draw
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        self.bridge.send_transforms(tfs, stamp, self.tf_topic)
+
+    def poll(self) -> None:
+        """Latched topics to new subscribers; clients' goals into ROS."""
+        for item in self.bridge.poll():
+            if isinstance(item, str):
+                self.get_logger().warn(item)
+                self.bridge.status(item)
+                continue
+            self._publish(item)
+
+    def _publish(self, m: ClientMessage) -> None:
+        if m.encoding == 'cdr':
+            try:
+                deserialize_message(m.data, PoseStamped)  # refuse what is no PoseStamped
+            except Exception as exc:  # rclpy raises a bare RuntimeError-like error
+                self._refuse(m, f'not a CDR PoseStamped: {exc}')
+                return
+            self.goals.publish(m.data)
+        else:
+            try:
+                pose = pose_from_json(m.data)
+            except ValueError as exc:
+                self._refuse(m, str(exc))
+                return
+            msg = PoseStamped()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = pose.sec, pose.nanosec
+            msg.header.frame_id = pose.frame_id
+            pt, o = msg.pose.position, msg.pose.orientation
+            pt.x, pt.y, pt.z = pose.position
+            o.x, o.y, o.z, o.w = pose.orientation
+            self.goals.publish(msg)
+        self.get_logger().info(f'client {m.client}: goal published on {self.goal_topic}')
+
+    def _refuse(self, m: ClientMessage, reason: str) -> None:
+        text = f'client {m.client}: {m.topic} ({m.encoding}) refused: {reason}'
+        self.get_logger().warn(text)
+        self.bridge.status(text)
+
+    def destroy_node(self) -> None:
+        bridge = getattr(self, 'bridge', None)
+        if bridge is not None:
+            bridge.stop()
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(LiveNode, prog='live', summary=SUMMARY, specs=ROBOT_PARAMS + LIVE_PARAMS,
+                    args=args, executor_type=SingleThreadedExecutor)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
