@@ -151,7 +151,7 @@ def _list(a) -> list | None:
 
 def analyze(path: str | Path) -> Report:
     """Read the bag at ``path`` and analyse it (raises reader.BagError, NothingToAnalyse)."""
-    return analyze_data(read_bag(path))
+    return analyze_data(read_bag(path, lean=True))
 
 
 def _robot(bag: BagData, warnings: list[str], joints: int) -> tuple[str, list, list]:
@@ -276,11 +276,15 @@ def _reference(bag: BagData, js: JointStates, warnings: list[str]) -> np.ndarray
         warnings.append(f'reference joint names {list(r.names)} differ from '
                         f'{list(js.names)}; reference ignored')
         return None
-    order = np.argsort(r.stamp, kind='stable')
-    st = r.stamp[order]
-    # the last reference for a stamp wins
-    last = np.r_[st[1:] != st[:-1], True]
-    st, pos = st[last], r.position[order][last]
+    st, pos = r.stamp, r.position
+    increasing = len(st) < 2 or bool((st[1:] > st[:-1]).all())
+    if increasing and len(st) == len(js.stamp) and (st == js.stamp).all():
+        return pos  # one reference per state, same increasing stamps (usual): no copy
+    if not increasing:  # sort; the last reference for a stamp wins
+        order = np.argsort(st, kind='stable')
+        st = st[order]
+        last = np.r_[st[1:] != st[:-1], True]
+        st, pos = st[last], pos[order][last]
     i = np.clip(np.searchsorted(st, js.stamp), 0, len(st) - 1)
     hit = st[i] == js.stamp
     out = np.full_like(js.position, np.nan)
@@ -299,12 +303,28 @@ def actuated(names) -> np.ndarray:
     return np.array([f'{n}_motor' not in listed for n in names], dtype=bool)
 
 
+def _finite_rows(*arrays: np.ndarray) -> np.ndarray:
+    """(N,) bool: the rows finite in every (N, J) array (column by column: faster than
+    ``isfinite(a).all(axis=1)`` on a few columns, the same result)."""
+    ok = np.ones(len(arrays[0]), bool)
+    for a in arrays:
+        for j in range(a.shape[1]):
+            ok &= np.isfinite(a[:, j])
+    return ok
+
+
 def _torque(t, effort, velocity, limits, sl, names) -> dict:
     stats = metrics.torque_stats(effort[sl], limits)
     driven = actuated(names)
-    e, v = effort[sl][:, driven], velocity[sl][:, driven]
-    ok = np.isfinite(e).all(axis=1) & np.isfinite(v).all(axis=1)
-    energy = metrics.energy_delivered(t[sl][ok], e[ok], v[ok])
+    if driven.all():  # no copies: the same values either way
+        e, v = effort[sl], velocity[sl]
+    else:
+        e, v = effort[sl][:, driven], velocity[sl][:, driven]
+    ok = _finite_rows(e, v)
+    if ok.all():
+        energy = metrics.energy_delivered(t[sl], e, v)
+    else:
+        energy = metrics.energy_delivered(t[sl][ok], e[ok], v[ok])
     return {'torque_peak': _list(stats['peak']), 'torque_rms': _list(stats['rms']),
             'saturated_fraction': _list(stats['saturated_fraction']), 'energy': energy}
 
@@ -357,9 +377,9 @@ def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
         desired = np.broadcast_to(set_point, q.shape)
         seg.reference = 'set_point'
     if desired is not None:
-        ok = np.isfinite(desired).all(axis=1) & np.isfinite(q).all(axis=1)
+        ok = _finite_rows(desired, q)
         if ok.any():
-            err = metrics.tracking_errors(q[ok] - desired[ok])
+            err = metrics.tracking_errors(q - desired if ok.all() else q[ok] - desired[ok])
             seg.tracking_rms, seg.tracking_max = _list(err['rms']), _list(err['max'])
             seg.final_error = _list(err['final'])
             seg.series['ref'] = desired
@@ -379,7 +399,7 @@ def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
     if seg.mode == 'straight_line' and arm is not None:
         assert points is not None  # straight means the points make a line
         a, b = points[0], points[-1]
-        measured = np.isfinite(q).all(axis=1) & (js.stamp[sl] >= line_from)
+        measured = _finite_rows(q) & (js.stamp[sl] >= line_from)
         xy = arm.forward_kinematics(q[measured])
         dev = metrics.segment_deviation(xy, a, b)
         before, past = metrics.overshoot_along_line(xy, a, b)
@@ -391,5 +411,6 @@ def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
             seg.line_overshoot_start = float(before.max())
         seg.series.update(xy=xy, deviation=dev, line=(a, b))
     elif arm is not None:
-        seg.series['xy'] = arm.forward_kinematics(q[np.isfinite(q).all(axis=1)])
+        finite = _finite_rows(q)
+        seg.series['xy'] = arm.forward_kinematics(q if finite.all() else q[finite])
     return seg

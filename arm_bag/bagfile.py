@@ -59,7 +59,8 @@ def recording_state(bag_dir: str | os.PathLike) -> str | None:
     import yaml
 
     try:
-        doc = yaml.safe_load(meta.read_text())
+        # libyaml's parser when present: the same document, ~20x faster than pure Python
+        doc = yaml.load(meta.read_text(), Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader))
         custom = doc[METADATA_ROOT].get('custom_data') or {}
         state = custom.get(RECORDING_KEY)
     except (yaml.YAMLError, KeyError, TypeError, AttributeError, OSError,

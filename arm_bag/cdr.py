@@ -166,11 +166,20 @@ def _bulk_group(rows: np.ndarray, layout: JointStateLayout, template: np.ndarray
         const[off:off + 8 * n] = False
     for a, b in layout.gaps:
         const[a:b] = False
-    ok = np.ones(len(rows), bool)
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], const.view(np.int8), [0]])))
-    for a, b in zip(edges[::2], edges[1::2]):
-        ok &= (rows[:, a:b] == template[a:b]).all(axis=1)
-    good = rows if ok.all() else rows[ok]
+    # A row is valid iff (row XOR template) AND mask is zero, mask = 0xff on the constant
+    # bytes: computed on whole words, one pass; rows are told apart only if one differs.
+    rows = np.ascontiguousarray(rows)
+    word = next(w for w in (8, 4, 2, 1) if length % w == 0)
+    wtype = np.dtype(f'<u{word}')
+    mask = np.where(const, np.uint8(0xFF), np.uint8(0)).view(wtype)
+    diff = rows.view(wtype) ^ template.view(wtype)
+    diff &= mask
+    if diff.any():
+        ok = ~diff.any(axis=1)
+        good = rows[ok]
+    else:
+        ok = np.ones(len(rows), bool)
+        good = rows
     fields: dict[str, tuple[Any, int]] = {'sec': ('<i4', 4), 'nsec': ('<u4', 8)}
     for key, (off, n) in zip(('p', 'v', 'e'), (layout.position, layout.velocity,
                                                layout.effort)):
@@ -178,7 +187,7 @@ def _bulk_group(rows: np.ndarray, layout: JointStateLayout, template: np.ndarray
             fields[key] = (('<f8', (n,)), off)
     dtype = np.dtype({'names': list(fields), 'formats': [f[0] for f in fields.values()],
                       'offsets': [f[1] for f in fields.values()], 'itemsize': length})
-    rec = np.ascontiguousarray(good).view(dtype)[:, 0]
+    rec = good.view(dtype)[:, 0]
     stamp = rec['sec'].astype(np.int64) * 1_000_000_000 + rec['nsec']
     width = len(layout.names)
     out = []

@@ -1,11 +1,13 @@
 """Read an arm_sim bag (a rosbag2 directory or a bare ``.mcap``) into numpy arrays, fast.
 
-No ROS install is needed. The MCAP file is read into memory and its records are walked
-directly: chunks are decompressed (zstd, lz4) and the message offsets come from the
-message-index records that follow each chunk, so messages are located with numpy instead of
-one Python object per message. JointState messages are decoded in bulk
-(:func:`arm_bag.cdr.decode_joint_states_bulk`); the few trajectory, path and goal messages
-one by one.
+No ROS install is needed. The MCAP file is streamed: memory-mapped (files of at least
+:data:`MMAP_MIN_BYTES`) and its records walked in file order, one chunk at a time: each
+chunk is decompressed (zstd, lz4), its message offsets come from the message-index records
+that follow it (messages are located with numpy, not one Python object per message), its
+JointState messages are decoded in bulk into arrays at once
+(:func:`arm_bag.cdr.decode_joint_states_bulk`), the few trajectory, path and goal messages
+copied, and then its decompressed bytes are dropped and its pages of the file released, so
+the peak memory is the decoded arrays plus about one chunk, not the file.
 
 Integrity: everything the format lets a reader check is checked (magic at both ends,
 record lengths, chunk sizes, decompression, chunk CRCs, the data-section and summary CRCs
@@ -21,8 +23,11 @@ fine. Problems that still allow analysis are listed in ``BagData.warnings``.
 from __future__ import annotations
 
 import json
+import mmap
+import os
 import struct
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,6 +46,7 @@ from arm_bag.bagfile import (
     OP_MESSAGE_INDEX,
     OP_METADATA,
     OP_SCHEMA,
+    OP_STATISTICS,
     RECORDING_OPEN,
     BagError,
     is_locked,
@@ -62,6 +68,10 @@ PATH = 'nav_msgs/msg/Path'
 POSE_STAMPED = 'geometry_msgs/msg/PoseStamped'
 ROBOT_RECORD = 'arm_sim_robot'
 _U16, _U32, _U64 = struct.Struct('<H'), struct.Struct('<I'), struct.Struct('<Q')
+#: Files of at least this many bytes are memory-mapped and streamed (pages released as
+#: they are done with); smaller ones are read into memory (same code, same checks).
+MMAP_MIN_BYTES = 1 << 20
+_NO_BYTES = np.zeros(0, np.uint8)
 
 
 @dataclass
@@ -151,8 +161,8 @@ class _Channel:
 
 @dataclass
 class _Chunk:
-    piece: int             # 0: offsets into the file, 1: into the decompressed arena
-    base: int              # where the chunk's records start in that piece
+    buf: np.ndarray        # uint8: the file, or the chunk's decompressed records
+    base: int              # where the chunk's records start in ``buf``
     size: int              # bytes of records
     at: int = 0            # file offset of the chunk record
     indexes: dict[int, np.ndarray] = field(default_factory=dict)  # channel -> (N, 2) u8
@@ -188,8 +198,21 @@ def _map_at(data, p: int, limit: int) -> tuple[dict[str, str], int]:
     return values, p
 
 
+#: What a scan hands over per chunk: (the scan: its ``channels`` known so far and
+#: ``hints``, the chunk's bytes (uint8), channel -> sorted offsets of its message records
+#: in those bytes).
+Consumer = Callable[['_Scan', np.ndarray, dict[int, np.ndarray]], None]
+
+
 class _Scan:
-    """All records of one MCAP file, checked; messages located as (piece, offset) pairs.
+    """All records of one MCAP file, checked; messages located chunk by chunk.
+
+    Each chunk's messages are handed to ``consume`` as soon as the chunk and its message
+    indexes are read (then its decompressed bytes are dropped and, for a memory-mapped
+    file, its pages released); top-level messages at the end. Without ``consume`` they are
+    kept in ``located`` (channel -> [(bytes, offsets)]). A damaged message index is
+    reported after the checks of the whole data section and summary, as when the file
+    was checked before any message was located: the first damage found is the same.
 
     ``live``: the file is still being written (a recorder holds its lock): read up to the
     last complete record instead of requiring the footer; damage in complete records is
@@ -199,8 +222,8 @@ class _Scan:
     naming the file, the byte offset and what is wrong.
     """
 
-    def __init__(self, data: bytes, name: str, live: bool = False,
-                 hint: str | None = None) -> None:
+    def __init__(self, data: bytes | mmap.mmap, name: str, live: bool = False,
+                 hint: str | None = None, consume: Consumer | None = None) -> None:
         self.name = name
         self.hint = hint or name
         if len(data) < 8 or data[:8] != MAGIC:
@@ -216,20 +239,73 @@ class _Scan:
         self.truncated = False
         self.end = 8  # file offset after the last record read
         self.warnings: list[str] = []
-        self._decompressed: list[bytes] = []
+        self.hints: dict[int, int] = {}  # channel -> message count the summary announces
+        self.located: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+        self._consume: Consumer = consume or self._keep
+        self._mm = data if isinstance(data, mmap.mmap) else None
+        self._pending: _Chunk | None = None  # read, its message indexes may follow
+        self._deferred: _Damage | None = None  # first damaged message index
+        self._crc = 0  # running CRC-32 of the data section up to _crc_pos
+        self._crc_pos = 0
+        self._released = 0  # file pages before this offset are released
+        self._want_crc = not live
         try:
             self._walk(data, live)
+            if self._deferred is not None:
+                raise self._deferred
+            self._loose()
         except _Damage as exc:
             raise self.error(exc.offset, exc.what) from None
-        self.arena = (np.frombuffer(b''.join(self._decompressed), np.uint8)
-                      if self._decompressed else np.zeros(0, np.uint8))
-        self.pieces = (self.file, self.arena)
-        self.located = self._locate()
+
+    def _keep(self, scan: _Scan, buf: np.ndarray,
+              found: dict[int, np.ndarray]) -> None:
+        for ch, offs in found.items():
+            self.located.setdefault(ch, []).append((buf, offs))
+
+    def _crc_to(self, data: bytes | mmap.mmap, stop: int) -> int:
+        """The data-section CRC-32 over bytes 0 to ``stop``, computed incrementally."""
+        if stop > self._crc_pos:
+            self._crc = zlib.crc32(memoryview(data)[self._crc_pos:stop], self._crc)
+            self._crc_pos = stop
+        return self._crc
+
+    def _finish(self, chunk: _Chunk, data: bytes | mmap.mmap, pos: int) -> None:
+        """Locate ``chunk``'s messages, hand them over and let its bytes go; ``pos``: where
+        the walk is (everything before it is read)."""
+        if self._deferred is None:
+            try:
+                if chunk.indexes and not chunk.scan:
+                    found = self._indexed(chunk)
+                else:
+                    walked: dict[int, list[int]] = {}
+                    self._records(chunk, chunk.base, chunk.base + chunk.size, True, walked)
+                    found = {ch: np.array(v, np.int64) for ch, v in walked.items()}
+            except _Damage as exc:
+                self._deferred = exc
+            else:
+                self._consume(self, chunk.buf, found)
+        chunk.buf, chunk.indexes = _NO_BYTES, {}
+        if self._mm is not None and hasattr(mmap, 'MADV_DONTNEED'):
+            stop = pos - pos % mmap.PAGESIZE
+            if stop > self._released:
+                if self._want_crc:
+                    self._crc_to(data, stop)
+                self._mm.madvise(mmap.MADV_DONTNEED, self._released, stop - self._released)
+                self._released = stop
+
+    def _loose(self) -> None:
+        """Hand over the top-level (unchunked) message records, by channel."""
+        if not self.loose:
+            return
+        loose = np.array(self.loose, np.int64)
+        chans = self.file[loose[:, None] + np.arange(9, 11)].copy().view('<u2')[:, 0]
+        self._consume(self, self.file,
+                      {ch: loose[chans == ch] for ch in np.unique(chans).tolist()})
 
     def error(self, offset: int, what: str) -> BagError:
         return BagError(f'{self.name}: byte {offset}: {what}; {recover_hint(self.hint)}')
 
-    def _walk(self, data: bytes, live: bool) -> None:
+    def _walk(self, data: bytes | mmap.mmap, live: bool) -> None:
         size = len(data)
         limit = size  # where the data section must end
         footer = None
@@ -251,9 +327,10 @@ class _Scan:
                 raise _Damage(sum_start, f'summary CRC mismatch over bytes {sum_start} to '
                               f'{footer + 25} (stored {sum_crc:#010x})')
             limit = sum_start or footer
+            if sum_start:
+                self.hints = _announced_counts(data, sum_start, footer)
         pos = 8
         last_chunk: _Chunk | None = None
-        arena_size = 0
         data_end = None
         while pos < limit:
             if pos + 9 > limit:
@@ -274,9 +351,9 @@ class _Scan:
             if pos == 8 and op != OP_HEADER:
                 raise _Damage(pos, f'the first record has opcode {op}, not a header')
             if op == OP_CHUNK:
-                last_chunk = self._chunk(data, pos, body, end, arena_size)
-                if last_chunk.piece == 1:
-                    arena_size += last_chunk.size
+                if self._pending is not None:
+                    self._finish(self._pending, data, pos)
+                last_chunk = self._pending = self._chunk(data, pos, body, end)
                 self.chunks.append(last_chunk)
             elif op == OP_MESSAGE_INDEX:
                 if last_chunk is None:
@@ -308,21 +385,24 @@ class _Scan:
                     self._other(op, data, body, end)
             pos = end
         self.end = pos
+        if self._pending is not None:
+            # live: the last chunk's message indexes may not all be written yet
+            self._pending.scan = live
+            self._finish(self._pending, data, pos)
+            self._pending = None
         if live:
-            if self.chunks:  # its message indexes may not all be written yet
-                self.chunks[-1].scan = True
             return
         if data_end is None or pos != limit:
             raise _Damage(pos, 'the data section does not end with a data end record where '
                           'the footer says the summary starts')
         crc = _U32.unpack_from(data, data_end + 9)[0]
-        if crc and zlib.crc32(data[:data_end]) != crc:
+        if crc and self._crc_to(data, data_end) != crc:
             raise _Damage(data_end, f'data section CRC mismatch over bytes 0 to {data_end} '
                           f'(stored {crc:#010x})')
         assert footer is not None
         self._summary(data, limit, footer)
 
-    def _summary(self, data: bytes, start: int, footer: int) -> None:
+    def _summary(self, data: bytes | mmap.mmap, start: int, footer: int) -> None:
         """Check the framing of the summary section (``start`` to ``footer``) and read its
         schemas and channels; chunk indexes must point at chunks of the data section."""
         starts = {c.at for c in self.chunks}
@@ -349,7 +429,7 @@ class _Scan:
                 raise _Damage(pos, f'a record with opcode {op} inside the summary')
             pos = end
 
-    def _chunk(self, data: bytes, at: int, body: int, end: int, arena_size: int) -> _Chunk:
+    def _chunk(self, data: bytes | mmap.mmap, at: int, body: int, end: int) -> _Chunk:
         if end - body < 40:
             raise _Damage(at, f'a chunk record of only {end - body} bytes')
         _start, _end, usize, crc = struct.unpack_from('<QQQI', data, body)
@@ -361,7 +441,7 @@ class _Scan:
         if p + rlen != end:
             raise _Damage(at, f'the chunk says {rlen} bytes of records, its record holds '
                           f'{end - p}')
-        raw = data[p:end]
+        raw = memoryview(data)[p:end] if compression == '' else data[p:end]
         try:
             if compression == '':
                 out = raw
@@ -390,9 +470,8 @@ class _Scan:
             raise _Damage(at, f'chunk CRC mismatch (stored {crc:#010x}, computed '
                           f'{zlib.crc32(out):#010x})')
         if compression == '':
-            return _Chunk(0, p, rlen, at)
-        self._decompressed.append(out)
-        return _Chunk(1, arena_size, usize, at)
+            return _Chunk(self.file, p, rlen, at)
+        return _Chunk(np.frombuffer(out, np.uint8), 0, usize, at)
 
     def _other(self, op: int, data, body: int, end: int) -> None:
         if op == OP_SCHEMA:
@@ -424,7 +503,7 @@ class _Scan:
         """Walk the records of ``chunk`` from ``start`` to ``stop`` (offsets in its piece):
         schemas and channels are read; messages are collected into ``out`` when ``slow``
         (no message index), else they are damage (a message the index does not list)."""
-        buf = self.pieces[chunk.piece]
+        buf = chunk.buf
         raw = buf[start:stop].tobytes()
         pos, size = 0, stop - start
         while pos < size:
@@ -453,9 +532,10 @@ class _Scan:
         """channel -> sorted message offsets of ``chunk`` from its message indexes, each
         checked against the message record it points at; the records between messages
         are walked (schemas, channels). Raises _Damage on any inconsistency."""
-        buf = self.pieces[chunk.piece]
+        buf = chunk.buf
         base, size = chunk.base, chunk.size
         found: dict[int, np.ndarray] = {}
+        ends_of: dict[int, np.ndarray] = {}  # channel -> record ends, as found
         for ch, idx in chunk.indexes.items():
             if not len(idx):
                 continue
@@ -464,21 +544,29 @@ class _Scan:
                 raise _Damage(chunk.at, f'the message index of channel {ch} points past its '
                               f'chunk of {size} bytes')
             offs = rel.astype(np.int64) + base
-            lens = _gather_u64(buf, offs, 1)
-            if ((buf[offs] != OP_MESSAGE).any() or (lens < 22).any()
+            head = _headers(buf, offs)
+            lens = head['len']
+            if ((head['op'] != OP_MESSAGE).any() or (lens < 22).any()
                     or (lens > size).any() or (rel + 9 + lens > size).any()):
                 raise _Damage(chunk.at, f'the message index of channel {ch} points at '
                               'something that is not a complete message record')
-            chans = buf[offs[:, None] + np.arange(9, 11)].copy().view('<u2')[:, 0]
-            if (chans != ch).any() or (_gather_u64(buf, offs, 15) != idx[:, 0]).any():
+            if (head['chan'] != ch).any() or (head['log'] != idx[:, 0]).any():
                 raise _Damage(chunk.at, f'the message index of channel {ch} does not match '
                               'the channel or log time of its messages')
-            found[ch] = np.sort(offs)
+            if len(offs) > 1 and (offs[1:] < offs[:-1]).any():
+                order = np.argsort(offs, kind='stable')
+                offs, lens = offs[order], lens[order]
+            found[ch] = offs
+            ends_of[ch] = offs + 9 + lens.astype(np.int64)
         if not found:
             self._records(chunk, base, base + size, False, {})
             return found
-        offs = np.sort(np.concatenate(list(found.values())))
-        ends = offs + 9 + _gather_u64(buf, offs, 1).astype(np.int64)
+        if len(found) == 1:
+            (offs,), (ends,) = found.values(), ends_of.values()
+        else:
+            offs = np.concatenate(list(found.values()))
+            order = np.argsort(offs, kind='stable')
+            offs, ends = offs[order], np.concatenate(list(ends_of.values()))[order]
         if (ends[:-1] > offs[1:]).any():
             raise _Damage(chunk.at, 'message records listed in the message index overlap')
         gap_start = np.r_[base, ends]
@@ -487,31 +575,45 @@ class _Scan:
             self._records(chunk, int(gap_start[i]), int(gap_stop[i]), False, {})
         return found
 
-    def _locate(self) -> dict[int, list[tuple[int, np.ndarray]]]:
-        """channel -> [(piece, absolute record offsets)], in file order."""
-        out: dict[int, list[tuple[int, np.ndarray]]] = {}
-        try:
-            for chunk in self.chunks:
-                if chunk.indexes and not chunk.scan:
-                    found = self._indexed(chunk)
-                else:
-                    walked: dict[int, list[int]] = {}
-                    self._records(chunk, chunk.base, chunk.base + chunk.size, True, walked)
-                    found = {ch: np.array(v, np.int64) for ch, v in walked.items()}
-                for ch, offs in found.items():
-                    out.setdefault(ch, []).append((chunk.piece, offs))
-        except _Damage as exc:
-            raise self.error(exc.offset, exc.what) from None
-        if self.loose:
-            loose = np.array(self.loose, np.int64)
-            chans = self.file[loose[:, None] + np.arange(9, 11)].copy().view('<u2')[:, 0]
-            for ch in np.unique(chans).tolist():
-                out.setdefault(ch, []).append((0, loose[chans == ch]))
-        return out
+
+def _announced_counts(data: bytes | mmap.mmap, start: int, stop: int) -> dict[int, int]:
+    """channel -> message count from the summary's statistics record (a capacity hint for
+    the decoded arrays, checked against nothing: {} if absent or unreadable)."""
+    try:
+        pos = start
+        while pos + 9 <= stop:
+            op, length = data[pos], _U64.unpack_from(data, pos + 1)[0]
+            if op == OP_STATISTICS and length >= 46:
+                body = pos + 9 + 42
+                end = body + 4 + _U32.unpack_from(data, body)[0]
+                most = len(data) // 31  # a message record takes >= 31 bytes: caps a bad hint
+                return {ch: min(n, most) for ch, n in (struct.unpack_from('<HQ', data, p) for p
+                                                       in range(body + 4, min(end, stop) - 9, 10))}
+            pos += 9 + length
+    except (struct.error, IndexError, ValueError):
+        pass
+    return {}
+
+
+#: The start of a message record: opcode, record length, channel id, log time.
+_HEAD = np.dtype({'names': ['op', 'len', 'chan', 'log'], 'formats': ['u1', '<u8', '<u2', '<u8'],
+                  'offsets': [0, 1, 9, 15], 'itemsize': 23})
+
+
+def _headers(buf: np.ndarray, offs: np.ndarray) -> np.ndarray:
+    """The first 23 bytes of the message records at ``offs`` of ``buf`` (uint8) as a
+    structured (N,) array of :data:`_HEAD` (one row gather; ``offs + 23 <= len(buf)``)."""
+    rows = np.lib.stride_tricks.as_strided(buf, (max(len(buf) - 22, 0), 23), (1, 1),
+                                           writeable=False)
+    return rows[offs].view(_HEAD)[:, 0]
 
 
 def _gather_u64(buf: np.ndarray, offs: np.ndarray, at: int) -> np.ndarray:
-    return buf[offs[:, None] + np.arange(at, at + 8)].copy().view('<u8')[:, 0]
+    """The little-endian uint64 at ``offs + at`` of ``buf`` (uint8), for every offset: one
+    row gather from an overlapping (len - 7, 8) view of ``buf``."""
+    rows = np.lib.stride_tricks.as_strided(buf, (max(len(buf) - 7, 0), 8), (1, 1),
+                                           writeable=False)
+    return rows[offs + at].view('<u8')[:, 0]
 
 
 # ---------------------------------------------------------------------- bag level
@@ -530,7 +632,8 @@ def mcap_files(path: str | Path) -> tuple[list[Path], dict | None, list[str]]:
         import yaml
 
         try:
-            doc = yaml.safe_load(meta_path.read_text())
+            doc = yaml.load(meta_path.read_text(),  # libyaml when present: ~20x faster
+                            Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader))
             meta = doc['rosbag2_bagfile_information']
             files = [p / f for f in meta.get('relative_file_paths', [])]
         except (yaml.YAMLError, KeyError, TypeError, OSError, UnicodeDecodeError) as exc:
@@ -554,35 +657,190 @@ def mcap_files(path: str | Path) -> tuple[list[Path], dict | None, list[str]]:
     return files, meta, warnings
 
 
-def read_bag(path: str | Path) -> BagData:
+REFERENCE_SUFFIX = 'arm_controller/reference'
+_COPIED = (TRAJECTORY, PATH, POSE_STAMPED)  # message types kept as bytes until the end
+
+
+@dataclass
+class _Raw:
+    """Message records copied out of a chunk: ``buf`` (uint8), record ``offs`` in it."""
+
+    buf: np.ndarray
+    offs: np.ndarray
+
+
+@dataclass
+class _Decoded:
+    """A chunk's JointStates of one channel, decoded: per joint-name set (most messages
+    first) ``[names, stamp, log_time, position, velocity, effort]`` (velocity and effort
+    None when not kept), and the number of undecodable messages."""
+
+    groups: list[list]
+    bad: int
+
+
+def _copy_records(buf: np.ndarray, offs: np.ndarray) -> _Raw:
+    """The message records at ``offs`` of ``buf`` copied into a buffer of their own."""
+    sizes = 9 + _gather_u64(buf, offs, 1).astype(np.int64)
+    starts = np.r_[0, np.cumsum(sizes)[:-1]].astype(np.int64)
+    idx = np.repeat(offs - starts, sizes) + np.arange(int(sizes.sum()))
+    return _Raw(buf[idx], starts)
+
+
+def _decode_states(buf: np.ndarray, offs: np.ndarray, positions_only: bool) -> _Decoded:
+    """Bulk-decode the JointState message records at ``offs`` of ``buf``; only stamps,
+    receive times and positions are kept if ``positions_only``."""
+    head = _headers(buf, offs)
+    lengths = head['len'].astype(np.int64) - 22
+    log_time = head['log'].astype(np.int64)
+    groups, bad = decode_joint_states_bulk(buf, offs + 31, lengths)
+    return _Decoded([[g.names, g.stamp, log_time[g.index], g.position,
+                      None if positions_only else g.velocity,
+                      None if positions_only else g.effort] for g in groups], bad)
+
+
+def _is_topic(topic: str, suffix: str) -> bool:
+    """Does ``topic`` name ``suffix`` (e.g. ``/arm2/joint_states`` for ``joint_states``)?"""
+    return topic == suffix or topic.endswith('/' + suffix) or topic.lstrip('/') == suffix
+
+
+class _Columns:
+    """Growing (capacity, ...) arrays of ``[stamp, log_time, position, velocity, effort]``
+    (None: not kept), filled piece by piece: one allocation when the capacity is known."""
+
+    def __init__(self, capacity: int) -> None:
+        self.n = 0
+        self.capacity = capacity
+        self.data: list[np.ndarray | None] | None = None
+
+    def append(self, arrays: list) -> None:
+        m = len(arrays[0])
+        if self.data is None:
+            self.capacity = max(self.capacity, m)
+            self.data = [None if a is None else np.empty((self.capacity, *a.shape[1:]), a.dtype)
+                         for a in arrays]
+        elif self.n + m > self.capacity:
+            self.capacity = max(self.n + m, self.capacity * 3 // 2 + 1024)
+            for i, d in enumerate(self.data):
+                if d is not None:
+                    grown = np.empty((self.capacity, *d.shape[1:]), d.dtype)
+                    grown[:self.n] = d[:self.n]
+                    self.data[i] = grown
+        for d, a in zip(self.data, arrays):
+            if d is not None:
+                d[self.n:self.n + m] = a
+        self.n += m
+
+    def arrays(self) -> list[np.ndarray | None]:
+        """The filled rows (a copy only if over 10% of the capacity went unused)."""
+        assert self.data is not None
+        n = self.n
+        return [None if d is None else d[:n] if n * 10 >= 9 * len(d) else d[:n].copy()
+                for d in self.data]
+
+
+class _States:
+    """The JointStates of one channel, decoded chunk by chunk in file order into
+    :class:`_Columns` per joint-name set (the first set met is the one kept)."""
+
+    def __init__(self, positions_only: bool, capacity: int) -> None:
+        self.positions_only = positions_only
+        self.capacity = capacity
+        self.first: tuple[str, ...] | None = None
+        self.columns: dict[tuple[str, ...], _Columns] = {}
+        self.bad = 0
+
+    def add(self, buf: np.ndarray, offs: np.ndarray) -> None:
+        part = _decode_states(buf, offs, self.positions_only)
+        self.bad += part.bad
+        for names, *arrays in part.groups:
+            if self.first is None:
+                self.first = names
+            col = self.columns.get(names)
+            if col is None:
+                col = self.columns[names] = _Columns(self.capacity if names == self.first
+                                                     else 0)
+            col.append(arrays)
+
+
+class _Collector:
+    """A scan's :data:`Consumer`: per channel, in file order, its messages as each chunk
+    is read: JointStates decoded at once into :class:`_States`, trajectories, paths, goals
+    and messages of channels not defined yet copied (:class:`_Raw`); other types only
+    counted. ``lean``: keep only stamps, receive times and positions of the reference
+    topic (what :mod:`arm_bag.analysis` uses)."""
+
+    def __init__(self, lean: bool) -> None:
+        self.lean = lean
+        self.counts: dict[int, int] = {}
+        self.parts: dict[int, list[_Raw]] = {}
+        self.states: dict[int, _States] = {}
+
+    def __call__(self, scan: _Scan, buf: np.ndarray, found: dict[int, np.ndarray]) -> None:
+        for ch, offs in found.items():
+            self.counts[ch] = self.counts.get(ch, 0) + len(offs)
+            c = scan.channels.get(ch)
+            if c is None:
+                self.parts.setdefault(ch, []).append(_copy_records(buf, offs))
+            elif c.encoding != 'cdr':
+                continue
+            elif c.schema == JOINT_STATE:
+                self._sink(ch, c, scan.hints.get(ch, 0)).add(buf, offs)
+            elif c.schema in _COPIED:
+                self.parts.setdefault(ch, []).append(_copy_records(buf, offs))
+
+    def _sink(self, ch: int, c: _Channel, capacity: int) -> _States:
+        sink = self.states.get(ch)
+        if sink is None:
+            sink = self.states[ch] = _States(
+                self.lean and _is_topic(c.topic, REFERENCE_SUFFIX), capacity)
+            for raw in self.parts.pop(ch, []):  # read before its channel was defined
+                sink.add(raw.buf, raw.offs)
+        return sink
+
+    def finish(self, channels: dict[int, _Channel]) -> None:
+        """After the scan: decode the JointStates of channels defined after them."""
+        for ch in list(self.parts):
+            c = channels.get(ch)
+            if c is not None and c.encoding == 'cdr' and c.schema == JOINT_STATE:
+                self._sink(ch, c, 0)
+
+
+def read_bag(path: str | Path, lean: bool = False) -> BagData:
     """Read the arm_sim topics of the bag at ``path`` (see the module docstring).
 
     Topics are chosen by type and name suffix, so namespaced runs (``/arm2/joint_states``)
     and foreign bags with a ``joint_states`` topic work: ``joint_states`` and
     ``arm_controller/reference`` (JointState), ``joint_trajectory`` (JointTrajectory),
     ``planner/path`` (Path), ``goal_pose`` (PoseStamped).
+
+    ``lean``: of the reference topic keep only what :mod:`arm_bag.analysis` uses (stamps,
+    receive times, positions); its ``velocity`` and ``effort`` are then read-only NaN
+    views that take no memory.
     """
     files, meta, warnings = mcap_files(path)
     bag = BagData(str(path), warnings=warnings)
     state = recording_state(path) if Path(path).is_dir() else None
     per_topic: dict[str, list] = {}
     for f in files:
-        scan = _open_scan(f, path, state, bag)
+        scan, found = _open_scan(f, path, state, bag, lean)
+        found.finish(scan.channels)
         bag.warnings += scan.warnings
         bag.truncated |= scan.truncated
         if ROBOT_RECORD in scan.metadata and bag.robot is None:
             bag.robot = _robot(scan.metadata[ROBOT_RECORD])
-        for ch, places in scan.located.items():
+        for ch, n in found.counts.items():
             channel = scan.channels.get(ch)
             if channel is None:
                 bag.warnings.append(f'{f.name}: messages on unknown channel {ch} skipped')
                 continue
-            n = sum(len(o) for _, o in places)
             t, count = bag.topics.get(channel.topic, (channel.schema, 0))
             bag.topics[channel.topic] = (t, count + n)
             bag.message_count += n
-            if channel.encoding == 'cdr':
-                per_topic.setdefault(channel.topic, []).append((scan, places))
+            if channel.encoding == 'cdr' and ch in found.states:
+                per_topic.setdefault(channel.topic, []).append(found.states[ch])
+            elif channel.encoding == 'cdr' and ch in found.parts:
+                per_topic.setdefault(channel.topic, []).extend(found.parts[ch])
     if meta is not None and not bag.truncated and state != RECORDING_OPEN:
         expected = meta.get('message_count')
         if isinstance(expected, int) and expected != bag.message_count:
@@ -592,7 +850,7 @@ def read_bag(path: str | Path) -> BagData:
     for topic, n in sorted(bag.lost.items()):
         bag.warnings.append(f'{topic}: {n} messages were lost before the recorder (counted '
                             'by it from publisher sequence gaps and DDS loss events)')
-    _decode_topics(bag, per_topic)
+    _decode_topics(bag, per_topic, lean)
     return bag
 
 
@@ -609,33 +867,42 @@ def _lost(meta: dict | None) -> dict[str, int]:
         return {}
 
 
-def _read(f: Path) -> bytes:
+def _read(f: Path) -> bytes | mmap.mmap:
+    """The file's bytes: memory-mapped from :data:`MMAP_MIN_BYTES` on, else read."""
     try:
-        return f.read_bytes()
+        with open(f, 'rb') as fh:
+            size = os.fstat(fh.fileno()).st_size
+            if size >= max(MMAP_MIN_BYTES, 1):
+                return mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+            return fh.read()
     except OSError as exc:
         raise BagError(f'{f}: cannot read: {exc.strerror or exc}') from None
 
 
-def _open_scan(f: Path, path: str | Path, state: str | None, bag: BagData) -> _Scan:
-    """Scan the MCAP file ``f`` of the bag at ``path`` (recording marker ``state``).
+def _open_scan(f: Path, path: str | Path, state: str | None, bag: BagData,
+               lean: bool = False) -> tuple[_Scan, _Collector]:
+    """Scan the MCAP file ``f`` of the bag at ``path`` (recording marker ``state``), its
+    messages taken by a :class:`_Collector` (``lean`` as in :func:`read_bag`).
 
     A bag marked as being recorded is read up to its last complete record while its
     recorder holds the file's lock, and recovered in place first when the recorder died
     (:func:`arm_bag.recover.recover_bag`); any other damaged file raises BagError.
     """
     data = _read(f)
+    found = _Collector(lean)
     if state != RECORDING_OPEN:
-        return _Scan(data, str(f), hint=str(path))
+        return _Scan(data, str(f), hint=str(path), consume=found), found
     if is_locked(f):
-        scan = _Scan(data, str(f), live=True, hint=str(path))
+        scan = _Scan(data, str(f), live=True, hint=str(path), consume=found)
         bag.truncated |= scan.truncated
         bag.warnings.append(f'{f}: still being recorded (a recorder holds its lock): read '
                             f'up to its last complete record, byte {scan.end} of {len(data)}')
-        return scan
+        return scan, found
     try:
-        return _Scan(data, str(f), hint=str(path))
+        return _Scan(data, str(f), hint=str(path), consume=found), found
     except BagError as exc:
         damage = str(exc)
+    del data  # let the mapping go before the file is repaired
     from arm_bag.recover import RecoveryError, recover_bag
 
     try:
@@ -643,7 +910,8 @@ def _open_scan(f: Path, path: str | Path, state: str | None, bag: BagData) -> _S
     except (RecoveryError, OSError) as exc:
         raise BagError(f'{damage} (automatic recovery failed: {exc})') from None
     bag.warnings.append(f'{f}: recovered unfinished recording: {report.summary()}')
-    return _Scan(_read(f), str(f), hint=str(path))
+    found = _Collector(lean)  # what the damaged file's scan took is dropped
+    return _Scan(_read(f), str(f), hint=str(path), consume=found), found
 
 
 def _robot(values: dict[str, str]) -> dict:
@@ -658,9 +926,7 @@ def _robot(values: dict[str, str]) -> dict:
 
 
 def _pick(bag: BagData, type_name: str, suffix: str) -> str | None:
-    found = [t for t, (ty, _) in bag.topics.items()
-             if ty == type_name and (t == suffix or t.endswith('/' + suffix)
-                                     or t.lstrip('/') == suffix)]
+    found = [t for t, (ty, _) in bag.topics.items() if ty == type_name and _is_topic(t, suffix)]
     if not found:
         return None
     found.sort(key=lambda t: (-bag.topics[t][1], t))
@@ -670,42 +936,25 @@ def _pick(bag: BagData, type_name: str, suffix: str) -> str | None:
     return found[0]
 
 
-def _raw_messages(parts) -> list[tuple[int, bytes]]:
-    """(log_time, data) of every message in ``parts``, by receive time."""
+def _raw_messages(parts: list) -> list[tuple[int, bytes]]:
+    """(log_time, data) of every message in ``parts`` (:class:`_Raw`), by receive time."""
     out = []
-    for scan, places in parts:
-        for piece, offs in places:
-            buf = scan.pieces[piece]
-            for o in offs.tolist():
-                length = _U64.unpack_from(buf, o + 1)[0]
-                log_time = _U64.unpack_from(buf, o + 15)[0]
-                out.append((log_time, buf[o + 31:o + 9 + length].tobytes()))
+    for part in parts:
+        buf = part.buf
+        for o in part.offs.tolist():
+            length = _U64.unpack_from(buf, o + 1)[0]
+            log_time = _U64.unpack_from(buf, o + 15)[0]
+            out.append((log_time, buf[o + 31:o + 9 + length].tobytes()))
     out.sort(key=lambda m: m[0])
     return out
 
 
-def _joint_states(bag: BagData, topic: str, parts) -> JointStates | None:
-    stamps, logs, pos, vel, eff = [], [], [], [], []
-    names = None
-    bad = other = 0
-    for scan, places in parts:
-        for piece, offs in places:
-            buf = scan.pieces[piece]
-            lengths = _gather_u64(buf, offs, 1).astype(np.int64) - 22
-            log_time = _gather_u64(buf, offs, 15).astype(np.int64)
-            groups, nbad = decode_joint_states_bulk(buf, offs + 31, lengths)
-            bad += nbad
-            for g in groups:
-                if names is None:
-                    names = g.names
-                if g.names != names:
-                    other += len(g.index)
-                    continue
-                stamps.append(g.stamp)
-                logs.append(log_time[g.index])
-                pos.append(g.position)
-                vel.append(g.velocity)
-                eff.append(g.effort)
+def _joint_states(bag: BagData, topic: str, sinks: list[_States]) -> JointStates | None:
+    """The JointStates of ``topic`` from its channels' :class:`_States` in file order: the
+    first joint-name set met is kept (others counted in a warning); by receive time."""
+    names = next((k.first for k in sinks if k.first is not None), None)
+    bad = sum(k.bad for k in sinks)
+    other = sum(c.n for k in sinks for nm, c in k.columns.items() if nm != names)
     if bad:
         bag.warnings.append(f'{topic}: {bad} messages could not be decoded as JointState')
     if other:
@@ -713,20 +962,41 @@ def _joint_states(bag: BagData, topic: str, parts) -> JointStates | None:
                             f'{list(names or ())} ignored')
     if names is None:
         return None
-    log = np.concatenate(logs)
-    order = np.argsort(log, kind='stable')
-    return JointStates(topic, names, np.concatenate(stamps)[order], log[order],
-                       np.concatenate(pos)[order], np.concatenate(vel)[order],
-                       np.concatenate(eff)[order])
+    parts = [k.columns[names].arrays() for k in sinks if names in k.columns]
+    count = sum(k.columns[names].n for k in sinks if names in k.columns)
+
+    def take(i: int) -> np.ndarray | None:
+        arrays = [p[i] for p in parts]
+        for p in parts:
+            p[i] = None
+        if arrays[0] is None:
+            return None
+        return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)  # type: ignore
+
+    log = take(1)
+    assert log is not None
+    order = None
+    if len(log) > 1 and not (log[1:] >= log[:-1]).all():  # else already by receive time
+        order = np.argsort(log, kind='stable')
+        log = log[order]
+
+    def field(i: int) -> np.ndarray:
+        a = take(i)
+        if a is None:  # not kept: a read-only NaN view, no memory
+            return np.broadcast_to(np.float64(np.nan), (count, len(names)))
+        return a if order is None else a[order]
+
+    stamp = field(0)
+    return JointStates(topic, names, stamp, log, field(2), field(3), field(4))
 
 
-def _decode_topics(bag: BagData, per_topic: dict[str, list]) -> None:
+def _decode_topics(bag: BagData, per_topic: dict[str, list], lean: bool = False) -> None:
     js = _pick(bag, JOINT_STATE, 'joint_states')
     if js and js in per_topic:
-        bag.joint_states = _joint_states(bag, js, per_topic[js])
-    ref = _pick(bag, JOINT_STATE, 'arm_controller/reference')
+        bag.joint_states = _joint_states(bag, js, per_topic.pop(js))
+    ref = _pick(bag, JOINT_STATE, REFERENCE_SUFFIX)
     if ref and ref in per_topic:
-        bag.reference = _joint_states(bag, ref, per_topic[ref])
+        bag.reference = _joint_states(bag, ref, per_topic.pop(ref))
     decoders = (('joint_trajectory', TRAJECTORY, decode_joint_trajectory,
                  lambda t, m: bag.trajectories.append(TrajectoryMsg(t, m))),
                 ('planner/path', PATH, decode_path,

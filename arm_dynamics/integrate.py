@@ -16,7 +16,6 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from arm_dynamics._validate import finite_scalar, state_array
 
@@ -143,6 +142,10 @@ def _reference_interval(model: Model, q: np.ndarray, qd: np.ndarray, tau: np.nda
 
     def rhs(_t, x):
         return np.concatenate([x[n:], model.forward_dynamics(x[:n], x[n:], tau)])
+
+    # scipy is imported here, not with the module: it costs ~0.5 s and ~50 MB, and only
+    # this reference method needs it (``arm-sim analyze`` imports arm_dynamics too).
+    from scipy.integrate import solve_ivp
 
     sol = solve_ivp(rhs, (0.0, dt), np.concatenate([q, qd]), method='DOP853', rtol=rtol,
                     atol=atol)

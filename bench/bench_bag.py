@@ -4,13 +4,24 @@ Writes a synthetic bag with arm_bag's own writer (no ROS): N/2 joint_states and 
 arm_controller/reference JointState messages at 100 Hz plus one trajectory and path per 10 s,
 then times ``arm_bag.analysis.analyze`` end to end (open, read, decode, all metrics) on the
 whole bag, and the two libraries reading + deserialising the first ``--compare`` messages
-(extrapolated as a rate: they are 10-50x slower). Run: ``python bench/bench_bag.py``.
+(extrapolated as a rate: they are 10-50x slower). Rates are JointState messages per second.
+
+Peak memory: each measurement of ours runs ``analyze`` once more in a fresh subprocess
+(``python -c``), which reports its own peak resident set (``VmHWM``; ``ru_maxrss`` counts
+the parent's memory at the fork too) and that of a bare interpreter with the same imports,
+so the table shows the
+peak and the peak over the imports, both also as a fraction of the bag's size on disk.
+``--memory-messages N`` (default 5e6, 0 = skip) adds an uncompressed N-message bag
+measured for memory alone (the issue-14 target: peak <= 0.5 x the bag size).
+Run: ``python bench/bench_bag.py``.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
+import subprocess
 import sys
 import tempfile
 import time
@@ -56,6 +67,46 @@ def time_ours(path: Path) -> tuple[float, int]:
                         if k in ('/joint_states', '/arm_controller/reference'))
 
 
+_PEAK = """
+import resource, sys
+from arm_bag.analysis import analyze
+
+def peak():
+    try:  # this process's own high-water mark
+        with open('/proc/self/status') as f:
+            return next(int(l.split()[1]) for l in f if l.startswith('VmHWM:')) * 1024
+    except (OSError, StopIteration):
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+if sys.argv[2] == 'run':
+    analyze(sys.argv[1])
+print(peak())
+"""
+
+
+def peak_rss(path: Path) -> tuple[int, int]:
+    """(peak RSS [bytes] of a fresh ``python`` that imported arm_bag and ran ``analyze`` on
+    ``path``, peak RSS of one that only imported it).
+
+    The peak is the child's ``VmHWM`` (/proc/self/status): on Linux the child's
+    ``ru_maxrss`` also counts the parent's resident set at the fork (the old memory map's
+    high-water mark is carried over at exec), which here is the benchmark holding its own
+    data; ``ru_maxrss`` is used only where /proc is missing."""
+    root = str(Path(__file__).resolve().parents[1])
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [root, *filter(None, [os.environ.get('PYTHONPATH')])]))
+    out = {}
+    for mode in ('run', 'import'):
+        res = subprocess.run([sys.executable, '-c', _PEAK, str(path), mode], env=env,
+                             capture_output=True, text=True, check=True)
+        out[mode] = int(res.stdout.split()[0])
+    return out['run'], out['import']
+
+
+def bag_bytes(path: Path) -> int:
+    return sum(f.stat().st_size for f in path.iterdir())
+
+
 def time_rosbags(path: Path, limit: int) -> float:
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
@@ -90,31 +141,53 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--compare', type=int, default=50_000,
                     help='messages the other libraries read (default 5e4)')
     ap.add_argument('--repeats', type=int, default=3, help='timed runs of ours (best kept)')
+    ap.add_argument('--memory-messages', type=int, default=5_000_000,
+                    help='size of the extra uncompressed bag measured for peak memory only '
+                         '(default 5e6; 0 = skip)')
     args = ap.parse_args(argv)
     tmp = Path(tempfile.mkdtemp(prefix='bench_bag-'))
     rows = []
+    mem_rows = []
     try:
         for compression in ('none', 'zstd'):
             path = tmp / f'bag_{compression}'
             wt = make_bag(path, args.messages, compression)
-            size = sum(f.stat().st_size for f in path.iterdir()) / 1e6
-            print(f'[bench] wrote {args.messages} messages ({compression}, {size:.0f} MB) in '
-                  f'{wt:.1f} s', file=sys.stderr)
+            size = bag_bytes(path)
+            print(f'[bench] wrote {args.messages} messages ({compression}, {size / 1e6:.0f} '
+                  f'MB) in {wt:.1f} s', file=sys.stderr)
             best = min(time_ours(path)[0] for _ in range(args.repeats))
             ours = args.messages / best
             rb = time_rosbags(path, args.compare)
             mr = time_mcap_ros2(path, args.compare)
-            rows.append((compression, size, best, ours, rb, mr))
+            rows.append((compression, size / 1e6, best, ours, rb, mr))
+            mem_rows.append((compression, args.messages, size, *peak_rss(path)))
+        if args.memory_messages:
+            path = tmp / 'bag_memory'
+            shutil.rmtree(tmp / 'bag_none', ignore_errors=True)
+            shutil.rmtree(tmp / 'bag_zstd', ignore_errors=True)
+            wt = make_bag(path, args.memory_messages, 'none')
+            size = bag_bytes(path)
+            print(f'[bench] wrote {args.memory_messages} messages (none, {size / 1e6:.0f} MB) '
+                  f'in {wt:.1f} s', file=sys.stderr)
+            mem_rows.append(('none', args.memory_messages, size, *peak_rss(path)))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    print(f'{"chunks":<7} {"MB":>5} {"ours s":>7} {"ours msg/s":>11} {"rosbags msg/s":>14} '
-          f'{"x":>6} {"mcap-ros2 msg/s":>16} {"x":>6}')
-    for comp, size, best, ours, rb, mr in rows:
-        print(f'{comp:<7} {size:5.0f} {best:7.2f} {ours:11,.0f} {rb:14,.0f} {ours / rb:6.1f} '
-              f'{mr:16,.0f} {ours / mr:6.1f}')
+    print(f'{"chunks":<7} {"MB":>5} {"ours s":>7} {"ours JS/s":>11} {"rosbags JS/s":>14} '
+          f'{"x":>6} {"mcap-ros2 JS/s":>16} {"x":>6}')
+    for comp, size_mb, best, ours, rb, mr in rows:
+        print(f'{comp:<7} {size_mb:5.0f} {best:7.2f} {ours:11,.0f} {rb:14,.0f} '
+              f'{ours / rb:6.1f} {mr:16,.0f} {ours / mr:6.1f}')
     print('ours = arm_bag.analysis.analyze end to end (open, read, decode, metrics) on all '
-          f'{args.messages} JointState messages; others read+deserialise the first '
-          f'{args.compare}.')
+          f'{args.messages} JointState messages (JS); others read+deserialise the first '
+          f'{args.compare}. Target: ours >= 2 M JS/s.')
+    print()
+    print(f'{"chunks":<7} {"messages":>9} {"bag MB":>7} {"peak MB":>8} {"x bag":>6} '
+          f'{"imports MB":>11} {"peak-imports MB":>16} {"x bag":>6}')
+    for comp, n, size, peak, base in mem_rows:
+        print(f'{comp:<7} {n:9d} {size / 1e6:7.0f} {peak / 1e6:8.0f} {peak / size:6.2f} '
+              f'{base / 1e6:11.0f} {(peak - base) / 1e6:16.0f} {(peak - base) / size:6.2f}')
+    print('peak = VmHWM of a fresh process running analyze (imports included); imports = '
+          'the same process without analyze. Target: peak <= 0.5 x bag (5 M, none).')
     return 0
 
 
