@@ -476,7 +476,54 @@ def describe(res: Result) -> str:
 
 
 # ---------------------------------------------------------------------- report
-def table(results: list[Result], repeats: int = 1) -> str:
+def no_ros_peer(rate: float, seconds: float) -> float:
+    """x real time of the same lockstep loop in one process without ROS: SimulatorCore and
+    ControllerCore (config/arm.yaml, computed torque holding the first position, physics
+    step 1 ms) stepped directly, each tick as the nodes do it (state -> arrays -> update ->
+    command list -> set_command -> advance, the limits check), no messages, no middleware.
+    """
+    import numpy as np
+    import yaml
+
+    from arm_control.core import ControllerCore
+    from arm_control.laws import ControlLaw, Gains
+    from arm_dynamics.limits import JointLimits
+    from arm_dynamics.simulation import SimulatorCore
+    from arm_dynamics.two_link import TwoLinkArm
+    from arm_sim import launcher
+
+    doc = yaml.safe_load(Path(launcher.config_file()).read_text())
+    p = {**doc['/**']['ros__parameters'], **doc['/**/simulator']['ros__parameters'],
+         **doc['/**/controller']['ros__parameters']}
+    arm = TwoLinkArm.from_params({k: p[k] for k in TwoLinkArm.PARAMETERS if k in p})
+    limits = JointLimits.from_params(p)
+    period = int(round(1e9 / rate))
+    sim = SimulatorCore(arm, q0=p['initial_positions'], qd0=p['initial_velocities'],
+                        effort_limits=p['effort_limits'], physics_step_ns=1_000_000,
+                        control_period_ns=period, velocity_limit=1e3,
+                        joint_names=p['joint_names'], joint_limits=limits,
+                        envelope=limits.envelope(p['fault_position_margin'],
+                                                 p['fault_velocity_factor']))
+    gains = Gains(p['gains.kp'], p['gains.kd'], p['gains.ki'], p['gains.i_clamp'])
+    ctl = ControllerCore(p['joint_names'], ControlLaw(p['law'], gains, arm,
+                                                      tuple(p['effort_limits'])),
+                         limits=limits)
+    ticks, begun = 0, time.perf_counter()
+    while (elapsed := time.perf_counter() - begun) < seconds:
+        for _ in range(1000):
+            view = sim.joint_view()
+            sec, nsec = divmod(sim.time_ns, 1_000_000_000)
+            step = ctl.update(sec + nsec * 1e-9, np.array(view.position),
+                              np.array(view.velocity))
+            sim.set_command(step.command.tau.tolist())
+            sim.advance()
+            sim.outside_limits  # noqa: B018 -- the simulator node checks it every period
+        ticks += 1000
+    return ticks * period * 1e-9 / elapsed
+
+
+def table(results: list[Result], repeats: int = 1,
+          peer: dict[float, float] | None = None) -> str:
     def num(x: float, fmt: str) -> str:
         return '-' if x != x else format(x, fmt)
 
@@ -494,6 +541,12 @@ def table(results: list[Result], repeats: int = 1) -> str:
                      f'{r.rtf_min:>5.2f}-{r.rtf_max:<5.2f} {r.rtf * r.rate:>8.0f} '
                      f'{1e6 / (r.rtf * r.rate):>8.0f} {nodes_cpu:>13} '
                      f'{r.other:>5.0f}')
+    for rate, rtf in (peer or {}).items():
+        lines.append(f'{rate:>6g}Hz {"no ROS":>9} {rtf:>10.2f}x {"":>11} {rtf * rate:>8.0f} '
+                     f'{1e6 / (rtf * rate):>8.1f}')
+    if peer:
+        lines.append('(no ROS = SimulatorCore + ControllerCore stepped directly in this '
+                     'process, best of 3: the loop\n without middleware or messages)')
     lines += ['', '== Real time: late cycles and state->command latency '
               '(target < 1% late or skipped at 1 kHz) ==',
               f"{'control':>8} {'executor':>9} {'late %':>7} {'sim %':>6} {'late':>5} {'skip':>5} "
@@ -530,7 +583,9 @@ def table(results: list[Result], repeats: int = 1) -> str:
         for r in lock:
             verdict = 'meets' if r.rtf >= LOCKSTEP_TARGET else 'MISSES'
             lines.append(f'[{variant}] lockstep 1 kHz: {r.rtf:.2f} sim-s per wall-s = '
-                         f'{r.rtf:.2f}x real time ({verdict} the >= 1x target)')
+                         f'{r.rtf:.2f}x real time ({verdict} the >= 1x target)'
+                         + (f'; {peer[1000.0] / r.rtf:.1f}x slower than without ROS'
+                            if peer and 1000.0 in peer else ''))
         rt = sorted((r for r in mine if r.mode == 'real_time'), key=lambda r: r.rate)
         if rt:
             held = [r for r in rt if r.late_fraction < LATE_LIMIT]
@@ -655,7 +710,8 @@ def main(argv: list[str] | None = None) -> int:
     groups: dict[tuple, list[Result]] = {}
     for r in results:
         groups.setdefault((r.mode, r.rate, r.variant), []).append(r)
-    print(table([merge(g) for g in groups.values()], args.repeats))
+    peer = {rate: max(no_ros_peer(rate, 1.0) for _ in range(3)) for rate in args.ls_rates}
+    print(table([merge(g) for g in groups.values()], args.repeats, peer))
     return 0 if results and all(r.ok for r in results) else 1
 
 
