@@ -5,6 +5,7 @@ from __future__ import annotations
 import ctypes
 import os
 import signal
+import socket
 import sys
 
 #: Set by the launcher (arm_sim.launcher.NodeProcess) to its pid; see :func:`watch_parent`.
@@ -26,3 +27,29 @@ def watch_parent() -> None:
         return
     if str(os.getppid()) != parent:
         os.kill(os.getpid(), signal.SIGTERM)
+
+
+_claimed: list[socket.socket] = []  # held for the life of the process
+
+
+def claim_domain(start: int, first: int = 1, last: int = 232) -> int:
+    """A ROS domain id that no other arm_sim process on this machine holds, trying ``start``
+    first, then the next ones (wrapping within ``first``..``last``).
+
+    The claim is an abstract Unix socket named after the id (Linux): no file, and the kernel
+    frees it when the process exits, however it exits. Two test sessions, a demo and a
+    benchmark started side by side therefore never share a domain (sharing one made each
+    see the other's simulator). Elsewhere, or if every id is held, ``start`` is returned.
+    """
+    span = last - first + 1
+    for k in range(span):
+        domain = first + (start - first + k) % span
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            sock.bind(f'\0arm_sim_ros_domain_{domain}')
+        except OSError:
+            sock.close()
+            continue
+        _claimed.append(sock)
+        return domain
+    return start

@@ -301,8 +301,13 @@ def suite_warnings(c: SuiteClient) -> list[str]:
 
 
 def default_domain() -> int:
+    """$ROS_DOMAIN_ID, else a domain no other arm_sim process here holds (claimed)."""
     env = os.environ.get('ROS_DOMAIN_ID')
-    return int(env) if env else 120 + os.getpid() % 100
+    if env:
+        return int(env)
+    from arm_common.process import claim_domain
+
+    return claim_domain(120 + os.getpid() % 100)
 
 
 def summary_table(results: list[TaskResult], segments: list[dict],

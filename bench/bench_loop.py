@@ -635,8 +635,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument('--repeats', type=int, default=1,
                     help='run every configuration this many times, interleaved; the table '
                          'gives the median lockstep speed and pooled real-time figures')
-    ap.add_argument('--domain', type=int, default=DEFAULT_DOMAIN,
-                    help=f'ROS_DOMAIN_ID for every process (default {DEFAULT_DOMAIN})')
+    ap.add_argument('--domain', type=int, default=None,
+                    help=f'ROS_DOMAIN_ID for every process (default: {DEFAULT_DOMAIN} or the '
+                    'next one no other arm_sim process on this machine holds)')
     ap.add_argument('--log-dir', type=Path, default=None,
                     help='where node logs go (default: a temporary directory)')
     args = ap.parse_args(argv)
@@ -672,6 +673,10 @@ def plan(args: argparse.Namespace) -> list[tuple[str, float, str]]:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    if args.domain is None:
+        from arm_common.process import claim_domain
+
+        args.domain = claim_domain(DEFAULT_DOMAIN)
     os.environ['ROS_DOMAIN_ID'] = str(args.domain)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     runs = plan(args)

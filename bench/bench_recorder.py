@@ -175,7 +175,9 @@ def main() -> int:
     if args.role == 'baseline':
         return baseline()
     rates = [float(r) for r in args.rates.split(',')]
-    domain = 150 + os.getpid() % 50
+    from arm_common.process import claim_domain
+
+    domain = claim_domain(150 + os.getpid() % 50)  # no other arm_sim process uses it
     best = {'recorder': 0.0, 'baseline': 0.0}
     print(f'{"rate msg/s":>10} {"achieved":>9}  {"recorder kept/sent (lost, counted)":>36}  '
           f'{"plain rclpy kept/sent (lost)":>30}')

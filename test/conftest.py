@@ -1,9 +1,10 @@
 """Fixtures for topic-level tests: real node processes on a private ROS domain.
 
-Every test session gets its own ``ROS_DOMAIN_ID`` (from the process id, or
-``ARM_SIM_TEST_DOMAIN``) with localhost-only discovery, so parallel sessions and other
-machines never see each other. The test process talks to the nodes through its own rclpy
-node; waits spin the executor until a condition holds (no fixed sleeps).
+Every test session gets its own ``ROS_DOMAIN_ID`` (``ARM_SIM_TEST_DOMAIN``, or one it
+claims: no other arm_sim process on the machine holds it) with localhost-only discovery,
+so parallel sessions and other machines never see each other. The test process talks to
+the nodes through its own rclpy node; waits spin the executor until a condition holds (no
+fixed sleeps).
 """
 
 from __future__ import annotations
@@ -19,7 +20,12 @@ from pathlib import Path
 
 import pytest
 
-DOMAIN_ID = int(os.environ.get('ARM_SIM_TEST_DOMAIN', 1 + os.getpid() % 231))
+if 'ARM_SIM_TEST_DOMAIN' in os.environ:
+    DOMAIN_ID = int(os.environ['ARM_SIM_TEST_DOMAIN'])
+else:  # one no other arm_sim process on this machine holds (a bench, a demo, a session)
+    from arm_common.process import claim_domain
+
+    DOMAIN_ID = claim_domain(1 + os.getpid() % 231)
 os.environ['ROS_DOMAIN_ID'] = str(DOMAIN_ID)
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
