@@ -132,9 +132,12 @@ class SimulatorCore:
         with np.errstate(all='ignore'):
             if self.hard_stops and self.joint_limits is not None:
                 q, qd = self.q, self.qd
-                for _ in range(self.substeps):
-                    q, qd = self.joint_limits.hard_stop(
-                        *self.model.step(q, qd, self.applied, self.dt, 1))
+                try:
+                    for _ in range(self.substeps):
+                        q, qd = self.joint_limits.hard_stop(
+                            *self.model.step(q, qd, self.applied, self.dt, 1))
+                except ValueError:  # went non-finite within the period: step refuses it
+                    q = qd = np.full(self.n, np.nan)
             else:
                 q, qd = self.model.step(self.q, self.qd, self.applied, self.dt, self.substeps)
         speed = float(np.max(np.abs(qd))) if np.isfinite(qd).all() else math.inf

@@ -107,6 +107,18 @@ def test_hard_stops_keep_every_state_within_the_position_limits():
     assert max(reached) == pytest.approx(math.pi), 'pushed against the elbow stop'
 
 
+def test_a_state_going_non_finite_within_a_period_against_the_stops_is_a_fault_not_a_crash():
+    # An absurd speed (limits opened wide) overflows within the period: the end-stop path
+    # steps one physics step at a time, and the step after the overflow refuses its input.
+    sim = SimulatorCore(ARM, q0=[0.0, 0.5], qd0=[1e150, 0.0], effort_limits=EFFORT,
+                        physics_step_ns=1_000_000, control_period_ns=10_000_000,
+                        velocity_limit=1e300, joint_names=('joint1', 'joint2'),
+                        joint_limits=JointLimits(velocity=(1e300, 1e300)), hard_stops=True)
+    sim.advance()
+    assert sim.diverged and 'integration diverged' in sim.diverged
+    assert sim.q.tolist() == [0.0, 0.5], 'the last good state is held'
+
+
 # ---------------------------------------------------------------------- controller
 def controller() -> ControllerCore:
     law = ControlLaw('pd', Gains(kp=(100.0, 60.0), kd=(20.0, 12.0)), ARM, tuple(EFFORT))
