@@ -47,14 +47,6 @@ from arm_dynamics.two_link import TwoLinkArm
 DEFAULT_PORT = 8765
 #: WebSocket subprotocol of the Foxglove WebSocket protocol.
 SUBPROTOCOL = 'foxglove.websocket.v1'
-#: Topics forwarded besides the recorder's (:data:`arm_bag.recorder_node.KNOWN_TOPICS`),
-#: relative to the node's namespace, with their types.
-EXTRA_TOPICS = {
-    'markers': 'visualization_msgs/msg/MarkerArray',
-    'robot_description': 'std_msgs/msg/String',
-}
-#: Extra topics whose publishers are transient local (latched).
-EXTRA_LATCHED = frozenset({'robot_description'})
 DESCRIPTION_TOPIC = 'robot_description'
 TF_TOPIC = 'tf'  # relative: /tf in the root namespace, as robot_state_publisher's
 GOAL_TOPIC = 'goal_pose'

@@ -2,7 +2,7 @@
 
 Thin ROS shell around :class:`arm_sim.live.Bridge` (foxglove-sdk, setup.py extra
 ``foxglove``). It subscribes the suite's topics raw (the recorder's
-:data:`~arm_bag.recorder_node.KNOWN_TOPICS`, plus ``markers`` and ``robot_description``),
+:data:`~arm_bag.recorder_node.KNOWN_TOPICS`, ``markers`` and ``robot_description`` among them),
 forwards each message's CDR bytes on its channel at its receive time on simulated time
 (the latest ``clock``; the server also broadcasts that time, as foxglove_bridge does with
 ``use_sim_time``), and adds what Foxglove's 3D panel needs to draw the arm:
@@ -47,8 +47,6 @@ from arm_dynamics.urdf import urdf_from_params
 from arm_sim.live import (
     DEFAULT_PORT,
     DESCRIPTION_TOPIC,
-    EXTRA_LATCHED,
-    EXTRA_TOPICS,
     GOAL_TOPIC,
     TF_TOPIC,
     Bridge,
@@ -99,8 +97,8 @@ class LiveNode(Node):
         self.description = self.resolve_topic_name(DESCRIPTION_TOPIC)
         self.states = self.resolve_topic_name('joint_states')
         self.clock = self.resolve_topic_name('clock')
-        topics = {**KNOWN_TOPICS, **EXTRA_TOPICS}
-        latched = {self.resolve_topic_name(t) for t in LATCHED | EXTRA_LATCHED}
+        topics = KNOWN_TOPICS  # the recorder's: markers and robot_description included
+        latched = {self.resolve_topic_name(t) for t in LATCHED}
         self.subs = []
         for rel, type_name in topics.items():
             name = self.resolve_topic_name(rel)
