@@ -60,7 +60,7 @@ from arm_dynamics._validate import finite_scalar, finite_tuple, state_array, ste
 
 Pair = tuple[float, float]
 _isfinite, _cos, _sin = math.isfinite, math.cos, math.sin
-_array = np.array
+_array, _empty = np.array, np.empty
 
 
 def _pair(name: str, x: object) -> Pair | None:
@@ -193,6 +193,83 @@ def _make_step(k: tuple[float, ...]) -> Callable[..., tuple[float, float, float,
     return step
 
 
+def _make_forward_dynamics(k: tuple[float, ...], checked: Callable[..., np.ndarray]
+                           ) -> Callable[..., np.ndarray]:
+    """The single-state hot path of :meth:`TwoLinkArm.forward_dynamics` for one parameter
+    set ``k``: ``fd(q, qd, tau) -> qdd``, three (2,) float arrays in, a new (2,) array out.
+
+    Built once per arm, so the constants are closure cells (no attribute look-up or tuple
+    unpacking per call), and installed as the instance's ``forward_dynamics``. The inputs are
+    unpacked with ``tolist`` and :func:`_make_accel`'s formula runs inline, term for term
+    (bit-identical). It is checked once, on the result: a non-finite input gives a
+    non-finite result or raises (``math.cos(inf)``), and either, like any argument that is
+    not a (2,) array, goes to ``checked`` (the validating path), which names the bad
+    argument or, for finite inputs that overflow, returns the same values.
+    """
+    a, b, d, g1, g2, b1, b2 = k
+    b2x = 2.0 * b
+    cos, sin, isfinite, empty = math.cos, math.sin, math.isfinite, np.empty
+
+    def forward_dynamics(q, qd, tau):
+        try:
+            q1, q2 = q.tolist()
+            qd1, qd2 = qd.tolist()
+            t1, t2 = tau.tolist()
+            c2 = cos(q2)
+            bs2 = b * sin(q2)
+            gc12 = g2 * cos(q1 + q2)
+            d11 = a + b2x * c2
+            d12 = d + b * c2
+            r1 = t1 + bs2 * qd2 * (2.0 * qd1 + qd2) - g1 * cos(q1) - gc12 - b1 * qd1
+            r2 = t2 - bs2 * qd1 * qd1 - gc12 - b2 * qd2
+            det = d11 * d - d12 * d12
+            x1 = (d * r1 - d12 * r2) / det
+            x2 = (d11 * r2 - d12 * r1) / det
+            if isfinite(x1 + x2):
+                out = empty(2)  # 30% cheaper than np.array((x1, x2))
+                out[0] = x1
+                out[1] = x2
+                return out
+        except (AttributeError, TypeError, ValueError, OverflowError, ZeroDivisionError):
+            pass
+        return checked(q, qd, tau)
+
+    return forward_dynamics
+
+
+def _make_inverse_dynamics(k: tuple[float, ...], checked: Callable[..., np.ndarray]
+                           ) -> Callable[..., np.ndarray]:
+    """The single-state hot path of :meth:`TwoLinkArm.inverse_dynamics`, built like
+    :func:`_make_forward_dynamics`: :func:`_make_inverse`'s formula inline on three finite
+    (2,) arrays (checked on the inputs: the formula has no division to expose them);
+    anything else goes to ``checked``."""
+    a, b, d, g1, g2, b1, b2 = k
+    b2x = 2.0 * b
+    cos, sin, isfinite, empty = math.cos, math.sin, math.isfinite, np.empty
+
+    def inverse_dynamics(q, qd, qdd):
+        try:
+            q1, q2 = q.tolist()
+            qd1, qd2 = qd.tolist()
+            a1, a2 = qdd.tolist()
+            ok = isfinite(q1 + q2 + qd1 + qd2 + a1 + a2)
+        except (AttributeError, TypeError, ValueError):
+            ok = False
+        if not ok:
+            return checked(q, qd, qdd)
+        c2 = cos(q2)
+        bs2 = b * sin(q2)
+        gc12 = g2 * cos(q1 + q2)
+        d12 = d + b * c2
+        out = empty(2)
+        out[0] = ((a + b2x * c2) * a1 + d12 * a2 - bs2 * qd2 * (2.0 * qd1 + qd2)
+                  + g1 * cos(q1) + gc12 + b1 * qd1)
+        out[1] = d12 * a1 + d * a2 + bs2 * qd1 * qd1 + gc12 + b2 * qd2
+        return out
+
+    return inverse_dynamics
+
+
 def _fast_floats(q: object, qd: object, tau: object) -> list[float] | None:
     """The hot path: three finite (2,) float arrays as six floats, else None (the caller
     then takes the validating path, which names any bad argument)."""
@@ -290,6 +367,18 @@ class TwoLinkArm:
         object.__setattr__(self, '_acc_array', _make_accel(k, np.cos, np.sin))
         object.__setattr__(self, '_tau_float', _make_inverse(k, math.cos, math.sin))
         object.__setattr__(self, '_step_float', _make_step(k))
+        # The single-state hot paths, as instance attributes: they shadow the methods, which
+        # stay the documented, validating fall-backs.
+        object.__setattr__(self, 'forward_dynamics', _make_forward_dynamics(
+            k, TwoLinkArm.forward_dynamics.__get__(self)))
+        object.__setattr__(self, 'inverse_dynamics', _make_inverse_dynamics(
+            k, TwoLinkArm.inverse_dynamics.__get__(self)))
+        for name in ('forward_dynamics', 'inverse_dynamics'):
+            getattr(self, name).__doc__ = getattr(TwoLinkArm, name).__doc__
+
+    def __reduce__(self) -> tuple[type, tuple[Any, ...]]:
+        """Pickle as the constructor arguments (the derived formulas are rebuilt)."""
+        return type(self), tuple(getattr(self, name) for name in self.PARAMETERS)
 
     #: The constructor arguments, which are also the robot parameters' names.
     PARAMETERS = ('link_lengths', 'com_distances', 'link_masses', 'link_inertias', 'gravity',
@@ -338,53 +427,27 @@ class TwoLinkArm:
 
         One 2x2 solve of ``D qdd = tau - C qd - g - B qd``. Shapes (2,) or (..., 2).
 
-        Three (2,) arrays take the hot path: unpacked as floats (``tolist``) and
-        :func:`_make_accel`'s formula evaluated inline (bit-identical results). It is checked
-        once, on the result: a non-finite input gives a non-finite result or raises
-        (``math.cos(inf)``), and either sends the call down the validating path below, which
-        names the bad argument (or, for finite inputs that overflow, returns the same
-        values).
+        On an instance this name is the hot path :func:`_make_forward_dynamics` built for
+        its parameters: three finite (2,) arrays are unpacked as floats and the closed form
+        evaluated inline, checked once on the result. Anything else (a batch, tuples, a
+        non-finite or malformed argument) comes here, to the validating path, which names
+        the bad argument; for finite inputs both give the same bits.
         """
-        try:
-            q1, q2 = q.tolist()
-            qd1, qd2 = qd.tolist()
-            t1, t2 = tau.tolist()
-            a, b, d, g1, g2, b1, b2 = self._k
-            c2 = _cos(q2)
-            bs2 = b * _sin(q2)
-            gc12 = g2 * _cos(q1 + q2)
-            d11 = a + 2.0 * b * c2
-            d12 = d + b * c2
-            r1 = t1 + bs2 * qd2 * (2.0 * qd1 + qd2) - g1 * _cos(q1) - gc12 - b1 * qd1
-            r2 = t2 - bs2 * qd1 * qd1 - gc12 - b2 * qd2
-            det = d11 * d - d12 * d12
-            x1, x2 = (d * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
-            if _isfinite(x1 + x2):
-                return _array((x1, x2))
-        except (AttributeError, TypeError, ValueError, OverflowError, ZeroDivisionError):
-            pass
         sq, sqd, stau = _pair('q', q), _pair('qd', qd), _pair('tau', tau)
         if sq is not None and sqd is not None and stau is not None:
             return np.array(self._acc_float(*sq, *sqd, *stau))
         q, qd, tau = (state_array(n, v, 2) for n, v in (('q', q), ('qd', qd), ('tau', tau)))
         out = self._acc_array(q[..., 0], q[..., 1], qd[..., 0], qd[..., 1],
-                          tau[..., 0], tau[..., 1])
+                              tau[..., 0], tau[..., 1])
         return np.stack(np.broadcast_arrays(*out), -1)
 
     def inverse_dynamics(self, q, qd, qdd) -> np.ndarray:
         """tau [N m] = D qdd + C qd + g + B qd for q, qd, qdd of shape (2,) or (..., 2).
 
-        One state takes a pure-float path (what the computed-torque controller calls every
-        tick); a batch the array path below."""
-        try:
-            q1, q2 = q.tolist()
-            qd1, qd2 = qd.tolist()
-            a1, a2 = qdd.tolist()
-            ok = _isfinite(q1 + q2 + qd1 + qd2 + a1 + a2)
-        except (AttributeError, TypeError, ValueError):
-            ok = False
-        if ok:
-            return _array(self._tau_float(q1, q2, qd1, qd2, a1, a2))
+        On an instance this name is the single-state hot path
+        :func:`_make_inverse_dynamics` (what the computed-torque controller calls every
+        tick); anything else comes here: one state of other types takes the float formula,
+        a batch the array path below."""
         sq, sqd, sqdd = _pair('q', q), _pair('qd', qd), _pair('qdd', qdd)
         if sq is not None and sqd is not None and sqdd is not None:
             return np.array(self._tau_float(*sq, *sqd, *sqdd))
@@ -413,7 +476,9 @@ class TwoLinkArm:
                     q1, q2, qd1, qd2 = self._step_float(q1, q2, qd1, qd2, t1, t2, dt, n_steps)
                 except (ValueError, OverflowError):  # math.cos(inf): diverged, as numpy would
                     q1 = q2 = qd1 = qd2 = math.nan
-                return _array((q1, q2)), _array((qd1, qd2))
+                q, qd = _empty(2), _empty(2)  # 30% cheaper than np.array((q1, q2))
+                q[0], q[1], qd[0], qd[1] = q1, q2, qd1, qd2
+                return q, qd
         dt = finite_scalar('dt', dt, minimum=0.0, strict=True)
         n_steps = step_count('n_steps', n_steps)
         x = _fast_floats(q, qd, tau)
@@ -432,6 +497,37 @@ class TwoLinkArm:
                                      qd[..., 1], tau[..., 0], tau[..., 1]), dt, n_steps)
         q1, q2, qd1, qd2 = np.broadcast_arrays(q1, q2, qd1, qd2)
         return np.stack((q1, q2), -1), np.stack((qd1, qd2), -1)
+
+    def step_floats(self, q1: float, q2: float, qd1: float, qd2: float, tau1: float,
+                    tau2: float, dt: float, n_steps: int = 1
+                    ) -> tuple[float, float, float, float]:
+        """:meth:`step` for one state given as plain floats, for hot loops that keep their
+        state as floats: returns ``(q1, q2, qd1, qd2)`` [rad, rad/s] after ``n_steps`` RK4
+        steps of ``dt`` [s] holding ``(tau1, tau2)`` [N m].
+
+        Validated here, once per call (finite state and torque, ``dt`` a float > 0,
+        ``n_steps`` an int >= 1; a bad argument raises ValueError naming it), then the
+        unchecked inlined RK4 (:func:`_make_step`) runs its four stages per step: the same
+        operations as :meth:`step`, so the same bits. A state that diverges within the call
+        comes back as NaNs, as in :meth:`step`. In a PD loop this is about 3x faster than
+        :meth:`step` with numpy arrays (``bench/bench_dynamics.py``).
+        """
+        try:
+            ok = (_isfinite(q1 + q2 + qd1 + qd2 + tau1 + tau2) and type(dt) is float
+                  and 0.0 < dt < math.inf and type(n_steps) is int and n_steps > 0)
+        except TypeError:
+            ok = False
+        if not ok:
+            q1, q2, qd1, qd2, tau1, tau2 = (
+                finite_scalar(name, value) for name, value in (
+                    ('q1', q1), ('q2', q2), ('qd1', qd1), ('qd2', qd2), ('tau1', tau1),
+                    ('tau2', tau2)))
+            dt = finite_scalar('dt', dt, minimum=0.0, strict=True)
+            n_steps = step_count('n_steps', n_steps)
+        try:
+            return self._step_float(q1, q2, qd1, qd2, tau1, tau2, dt, n_steps)
+        except (ValueError, OverflowError):  # math.cos(inf): diverged, as in step
+            return math.nan, math.nan, math.nan, math.nan
 
     def energy(self, q, qd) -> tuple[np.ndarray, np.ndarray]:
         """(kinetic, potential) energy [J]; potential is zero at the base height."""

@@ -239,20 +239,20 @@ def loop_ours(arm: TwoLinkArm, n: int) -> tuple[Array, Array]:
     return q, qd
 
 
-def loop_fused(arm: TwoLinkArm, n: int) -> tuple[Array, Array]:
-    """n PD + RK4 steps validated once: the state and gains as floats, the PD law on floats
-    and the unchecked single-state RK4 ``TwoLinkArm._step_float`` (what a simulator or
-    controller core calls after checking its inputs once). The same IEEE operations per
-    element as :func:`loop_ours`, so the same trajectory bit for bit."""
+def loop_floats(arm: TwoLinkArm, n: int) -> tuple[Array, Array]:
+    """n PD + RK4 steps through the public float API ``TwoLinkArm.step_floats``: the state
+    and gains kept as floats, the PD law on floats; each call validates its arguments once,
+    then runs the unchecked inlined RK4. The same IEEE operations per element as
+    :func:`loop_ours`, so the same trajectory bit for bit."""
     q1, q2 = Q0.tolist()
     v1 = v2 = 0.0
     g1, g2 = Q_GOAL.tolist()
     p1, p2 = KP.tolist()
     d1, d2 = KD.tolist()
-    step = arm._step_float
+    step = arm.step_floats
     for _ in range(n):
         q1, q2, v1, v2 = step(q1, q2, v1, v2, p1 * (g1 - q1) - d1 * v1,
-                              p2 * (g2 - q2) - d2 * v2, DT, 1)
+                              p2 * (g2 - q2) - d2 * v2, DT)
     return np.array((q1, q2)), np.array((v1, v2))
 
 
@@ -434,7 +434,7 @@ def main(argv: list[str] | None = None) -> int:
     log(f'(c) closed loop: PD + RK4, dt {DT * 1e3:g} ms, {budget.sim_time:g} s simulated '
         f'= {n_steps} steps ...')
     runs = per_run({'ours': lambda: loop_ours(arm, n_steps),
-                    'fused': lambda: loop_fused(arm, n_steps),
+                    'floats': lambda: loop_floats(arm, n_steps),
                     'mj_rk4': lambda: loop_mujoco(mmodel, mdata, n_steps),
                     'mj_euler': lambda: loop_mujoco(emodel, edata, n_steps),
                     'pin': lambda: loop_pinocchio(arm, pmodel, pdata, n_steps),
@@ -449,7 +449,7 @@ def main(argv: list[str] | None = None) -> int:
         (qa, qda), (qb, qdb) = loops['ours'][1], loops[name][1]
         return float(max(np.max(np.abs(qa - qb)), np.max(np.abs(qda - qdb))))
 
-    diffs = {name: final_diff(name) for name in ('mj_rk4', 'mj_euler', 'pin', 'fused')}
+    diffs = {name: final_diff(name) for name in ('mj_rk4', 'mj_euler', 'pin', 'floats')}
     q_end, qd_end = loops['ours'][1]
     log(f'  final state (ours): q {np.array2string(q_end, precision=6)} rad, '
         f'qd {np.array2string(qd_end, precision=6)} rad/s')
@@ -507,8 +507,8 @@ def main(argv: list[str] | None = None) -> int:
           f'{"best run x":>11s}')
     ref = loops['mj_rk4'][0].median
     rows_c = (
-        ('TwoLinkArm.step (single-state path)', 'ours'),
-        ('ours validated once: float PD + _step_float', 'fused'),
+        ('TwoLinkArm.step + numpy PD', 'ours'),
+        ('TwoLinkArm.step_floats + float PD', 'floats'),
         ('mujoco.mj_step, integrator RK4', 'mj_rk4'),
         ('mujoco.mj_step, integrator Euler (default)', 'mj_euler'),
         ('Python RK4 around pin.aba (4 calls/step)', 'pin'),
@@ -522,12 +522,12 @@ def main(argv: list[str] | None = None) -> int:
     rt_best = budget.sim_time / loops['ours'][0].low
     print(f'  -> ours: {rt:.0f}x real time (median; best run {rt_best:.0f}x), target >= 100x '
           f'{"MET" if rt >= 100 else "NOT MET"}')
-    for label, key in (('TwoLinkArm.step', 'ours'), ('validated once', 'fused')):
+    for label, key in (('TwoLinkArm.step', 'ours'), ('TwoLinkArm.step_floats', 'floats')):
         ratio = loops[key][0].median / ref
         print(f'  -> {label} / mj_step RK4: {ratio:.2f}x the time per step, target <= 0.5x '
               f'{"MET" if ratio <= 0.5 else "NOT MET"}')
-    print(f'  validated-once loop vs TwoLinkArm.step loop, final state: max difference '
-          f'{diffs["fused"]:.1e} (0 = bit-identical)')
+    print(f'  step_floats loop vs TwoLinkArm.step loop, final state: max difference '
+          f'{diffs["floats"]:.1e} (0 = bit-identical)')
     print(f'  trajectory agreement vs ours, max(|dq| [rad], |dqd| [rad/s]) '
           f'({"OK" if loop_ok else "MISMATCH"}: MuJoCo RK4 tolerance {LOOP_ATOL:g}):')
     print(f'    {"":14s} {"final state":>12s} {"max along run":>14s}')

@@ -150,3 +150,62 @@ def test_overflowing_finite_inputs_still_return_the_old_values() -> None:
             pytest.approx(out.tolist(), nan_ok=True)
         q, qd = ARM.step(np.array([0.3, 0.4]), huge, z, 1e-3, 50)
     assert np.isnan(q).all() and np.isnan(qd).all()
+
+
+def test_step_floats_gives_the_bits_of_step_and_the_saved_reference() -> None:
+    for dt, n, key in ((1e-3, 1, 'step1'), (2e-3, 3, 'step3')):
+        for i, (q, qd, t) in enumerate(zip(_rows('q'), _rows('qd'), _rows('tau'))):
+            out = ARM.step_floats(*q.tolist(), *qd.tolist(), *t.tolist(), dt, n)
+            sq, sqd = ARM.step(q, qd, t, dt, n)
+            assert list(out) == [*sq.tolist(), *sqd.tolist()]
+            np.testing.assert_allclose(out, np.r_[REF[f'{key}_q'][i], REF[f'{key}_qd'][i]],
+                                       **TOL)
+
+
+@pytest.mark.parametrize('slot, name', list(enumerate(('q1', 'q2', 'qd1', 'qd2', 'tau1',
+                                                        'tau2'))))
+@pytest.mark.parametrize('bad, words', [(math.nan, 'must be finite'),
+                                        (math.inf, 'must be finite'),
+                                        ('x', 'must be a number'),
+                                        (np.array([1.0, 2.0]), 'must be a number')])
+def test_step_floats_refuses_a_bad_state_by_name(slot: int, name: str, bad: object,
+                                                 words: str) -> None:
+    args: list[object] = [0.3, -0.2, 0.1, 0.4, 1.0, -2.0]
+    args[slot] = bad
+    with pytest.raises(ValueError, match=f'^{name} {words}'):
+        ARM.step_floats(*args, 1e-3)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize('dt, n, words', [(0.0, 1, 'dt must be > 0'),
+                                          (math.inf, 1, 'dt must be finite'),
+                                          ('x', 1, 'dt must be a number'),
+                                          (1e-3, 0, 'n_steps must be an integer'),
+                                          (1e-3, 1.0, 'n_steps must be an integer')])
+def test_step_floats_refuses_bad_dt_and_n_steps(dt: object, n: object, words: str) -> None:
+    with pytest.raises(ValueError, match=words):
+        ARM.step_floats(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, dt, n)  # type: ignore[arg-type]
+
+
+def test_step_floats_returns_nan_for_a_state_that_diverges_within_the_call() -> None:
+    out = ARM.step_floats(0.3, 0.4, 1e300, -1e300, 0.0, 0.0, 1e-3, 50)
+    assert all(math.isnan(x) for x in out)
+
+
+def test_the_instance_hot_paths_give_the_bits_of_the_validating_methods() -> None:
+    """``arm.forward_dynamics``/``inverse_dynamics`` are per-arm closures that shadow the
+    methods; the methods (the fall-backs) must give the same bits."""
+    for q, qd, t in zip(_rows('q')[:100], _rows('qd')[:100], _rows('tau')[:100]):
+        assert ARM.forward_dynamics(q, qd, t).tolist() == \
+            TwoLinkArm.forward_dynamics(ARM, q, qd, t).tolist()
+        assert ARM.inverse_dynamics(q, qd, t).tolist() == \
+            TwoLinkArm.inverse_dynamics(ARM, q, qd, t).tolist()
+    assert ARM.forward_dynamics.__doc__ == TwoLinkArm.forward_dynamics.__doc__
+
+
+def test_an_arm_pickles_and_its_copy_computes_the_same() -> None:
+    import pickle
+
+    copy = pickle.loads(pickle.dumps(ARM))
+    assert copy == ARM
+    q, qd, t = _rows('q')[0], _rows('qd')[0], _rows('tau')[0]
+    assert copy.forward_dynamics(q, qd, t).tolist() == ARM.forward_dynamics(q, qd, t).tolist()
