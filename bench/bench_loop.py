@@ -26,6 +26,7 @@ figure.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import statistics
@@ -113,6 +114,61 @@ def command_answers_ns(raw: bytes) -> int | None:
     (length,) = struct.unpack_from('<I', raw, 8)
     return parse_answer_tag(raw[12:12 + length - 1].decode('ascii', 'replace'))
 
+
+# The middleware floor: two processes bouncing one small message back and forth with the
+# nodes' executor and QoS, callbacks doing nothing else: python -c PING_PONG ROLE SECONDS.
+# The pinger prints its round trips per wall second; no lockstep over ROS can beat it.
+PING_PONG = '''
+import sys, time
+import rclpy
+from rclpy.experimental import EventsExecutor
+from std_msgs.msg import Float64MultiArray
+role, seconds = sys.argv[1], float(sys.argv[2])
+rclpy.init()
+node = rclpy.create_node('bench_loop_' + role)
+out, into = ('ping', 'pong') if role == 'pinger' else ('pong', 'ping')
+pub = node.create_publisher(Float64MultiArray, out, 10)
+msg = Float64MultiArray(data=[0.0, 0.0])
+count = [0]
+def answer(m):
+    count[0] += 1
+    pub.publish(msg if role == 'pinger' else m)
+node.create_subscription(Float64MultiArray, into, answer, 10)
+executor = EventsExecutor()
+executor.add_node(node)
+end = time.monotonic() + seconds
+if role == 'pinger':
+    while time.monotonic() < end and count[0] == 0:
+        if pub.get_subscription_count() and node.count_publishers(into):
+            pub.publish(msg)
+        executor.spin_once(timeout_sec=0.2)
+    while time.monotonic() < end and count[0] < 200:
+        executor.spin_once(timeout_sec=0.2)
+    n0, t0 = count[0], time.perf_counter()
+    end = time.monotonic() + seconds / 2
+while time.monotonic() < end:
+    executor.spin_once(timeout_sec=0.1)
+if role == 'pinger':
+    print((count[0] - n0) / (time.perf_counter() - t0), flush=True)
+'''
+
+
+def ping_pong_floor(seconds: float) -> float:
+    """Round trips per wall second of :data:`PING_PONG` between two processes on the
+    bench's domain (measured over the second half of ``seconds``); NaN if it failed."""
+    import subprocess
+
+    echo = subprocess.Popen([sys.executable, '-c', PING_PONG, 'echo', str(seconds + 5.0)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        pinger = subprocess.run([sys.executable, '-c', PING_PONG, 'pinger', str(seconds)],
+                                capture_output=True, text=True, timeout=seconds + 30.0)
+        return float(pinger.stdout.strip() or 'nan')
+    except (subprocess.TimeoutExpired, ValueError):
+        return math.nan
+    finally:
+        echo.terminate()
+        echo.wait(10)
 
 # ---------------------------------------------------------------------- processes
 @dataclass
@@ -523,7 +579,7 @@ def no_ros_peer(rate: float, seconds: float) -> float:
 
 
 def table(results: list[Result], repeats: int = 1,
-          peer: dict[float, float] | None = None) -> str:
+          peer: dict[float, float] | None = None, floor: float = math.nan) -> str:
     def num(x: float, fmt: str) -> str:
         return '-' if x != x else format(x, fmt)
 
@@ -544,9 +600,15 @@ def table(results: list[Result], repeats: int = 1,
     for rate, rtf in (peer or {}).items():
         lines.append(f'{rate:>6g}Hz {"no ROS":>9} {rtf:>10.2f}x {"":>11} {rtf * rate:>8.0f} '
                      f'{1e6 / (rtf * rate):>8.1f}')
+    for rate in (peer or {}) if floor == floor else ():
+        lines.append(f'{rate:>6g}Hz {"floor":>9} {floor / rate:>10.2f}x {"":>11} '
+                     f'{floor:>8.0f} {1e6 / floor:>8.1f}')
     if peer:
         lines.append('(no ROS = SimulatorCore + ControllerCore stepped directly in this '
-                     'process, best of 3: the loop\n without middleware or messages)')
+                     'process, best of 3: the loop\n without middleware or messages; floor = '
+                     'two rclpy processes bouncing a 2-double message\n with the nodes\' '
+                     'executor and QoS and empty callbacks, best of the repeats: no lockstep '
+                     'over\n ROS here can beat it)')
     lines += ['', '== Real time: late cycles and state->command latency '
               '(target < 1% late or skipped at 1 kHz) ==',
               f"{'control':>8} {'executor':>9} {'late %':>7} {'sim %':>6} {'late':>5} {'skip':>5} "
@@ -716,7 +778,11 @@ def main(argv: list[str] | None = None) -> int:
     for r in results:
         groups.setdefault((r.mode, r.rate, r.variant), []).append(r)
     peer = {rate: max(no_ros_peer(rate, 1.0) for _ in range(3)) for rate in args.ls_rates}
-    print(table([merge(g) for g in groups.values()], args.repeats, peer))
+    say('measuring the middleware floor (rclpy ping-pong between two processes) ...')
+    floors = [ping_pong_floor(args.duration) for _ in range(args.repeats)]
+    floor = max((f for f in floors if f == f), default=math.nan)
+    say('  round trips/s: ' + ', '.join(f'{f:.0f}' for f in floors))
+    print(table([merge(g) for g in groups.values()], args.repeats, peer, floor))
     return 0 if results and all(r.ok for r in results) else 1
 
 
