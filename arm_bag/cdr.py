@@ -242,6 +242,9 @@ def decode_joint_states_bulk(buf: np.ndarray, offsets: np.ndarray,
         by_names.setdefault(names, []).append((np.array([i]), np.array([stamp]), *arrays))
     result = []
     for names, parts in by_names.items():
+        if len(parts) == 1:  # one length, all valid: already in order, nothing to copy
+            result.append(JointStateArrays(names, *parts[0]))
+            continue
         index = np.concatenate([p[0] for p in parts])
         order = np.argsort(index, kind='stable')
         cat = [np.concatenate([p[k] for p in parts])[order] for k in range(1, 5)]
