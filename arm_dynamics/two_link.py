@@ -237,15 +237,13 @@ def _make_forward_dynamics(k: tuple[float, ...], checked: Callable[..., np.ndarr
     return forward_dynamics
 
 
-def _make_inverse_dynamics(k: tuple[float, ...], checked: Callable[..., np.ndarray]
-                           ) -> Callable[..., np.ndarray]:
-    """The single-state hot path of :meth:`TwoLinkArm.inverse_dynamics`, built like
-    :func:`_make_forward_dynamics`: :func:`_make_inverse`'s formula inline on three finite
-    (2,) arrays (checked on the inputs: the formula has no division to expose them);
-    anything else goes to ``checked``."""
-    a, b, d, g1, g2, b1, b2 = k
-    b2x = 2.0 * b
-    cos, sin, isfinite, empty = math.cos, math.sin, math.isfinite, np.empty
+def _make_inverse_dynamics(tau_float: Callable[..., tuple[float, float]],
+                           checked: Callable[..., np.ndarray]) -> Callable[..., np.ndarray]:
+    """The single-state hot path of :meth:`TwoLinkArm.inverse_dynamics`, installed like
+    :func:`_make_forward_dynamics`: three finite (2,) arrays go through ``tau_float``
+    (:func:`_make_inverse`'s float formula; checked on the inputs, as the formula has no
+    division to expose them), anything else to ``checked``."""
+    isfinite, empty = math.isfinite, np.empty
 
     def inverse_dynamics(q, qd, qdd):
         try:
@@ -257,14 +255,8 @@ def _make_inverse_dynamics(k: tuple[float, ...], checked: Callable[..., np.ndarr
             ok = False
         if not ok:
             return checked(q, qd, qdd)
-        c2 = cos(q2)
-        bs2 = b * sin(q2)
-        gc12 = g2 * cos(q1 + q2)
-        d12 = d + b * c2
         out = empty(2)
-        out[0] = ((a + b2x * c2) * a1 + d12 * a2 - bs2 * qd2 * (2.0 * qd1 + qd2)
-                  + g1 * cos(q1) + gc12 + b1 * qd1)
-        out[1] = d12 * a1 + d * a2 + bs2 * qd1 * qd1 + gc12 + b2 * qd2
+        out[0], out[1] = tau_float(q1, q2, qd1, qd2, a1, a2)
         return out
 
     return inverse_dynamics
@@ -372,7 +364,7 @@ class TwoLinkArm:
         object.__setattr__(self, 'forward_dynamics', _make_forward_dynamics(
             k, TwoLinkArm.forward_dynamics.__get__(self)))
         object.__setattr__(self, 'inverse_dynamics', _make_inverse_dynamics(
-            k, TwoLinkArm.inverse_dynamics.__get__(self)))
+            self._tau_float, TwoLinkArm.inverse_dynamics.__get__(self)))
         for name in ('forward_dynamics', 'inverse_dynamics'):
             getattr(self, name).__doc__ = getattr(TwoLinkArm, name).__doc__
 
