@@ -270,12 +270,6 @@ class Ros:
                              '(eProsima/Fast-DDS#5053; README: Known limitations)')
             raise
 
-    def wait_gone(self, name: str, leaving: int = 0, timeout: float = 60.0) -> None:
-        """Wait until at most ``leaving`` nodes called ``name`` are in the graph. A stopped
-        node leaves at once, a killed one when its DDS lease ends (about 20 s)."""
-        self.wait_for(lambda: self.node.get_node_names().count(name) <= leaving, timeout,
-                      f'/{name} to leave the graph')
-
     def pause_simulator_now(self, diags: list, node: str = '/simulator') -> float:
         """Pause a lockstep simulator where it is and return that simulated time [s], as
         the simulator reports it (``paused_at``): lockstep runs seconds ahead of what the

@@ -106,8 +106,13 @@ def test_recorded_messages_read_back_identical_with_rosbags(ros, launch, tmp_pat
 def test_sigkill_loses_at_most_the_last_flush_and_the_bag_is_completed_when_opened(
         ros, launch, tmp_path):
     proc, out, sent, diags = record(ros, launch, tmp_path)
+    killed = recorder_endpoints(ros)
     assert proc.stop(signal.SIGKILL) == -signal.SIGKILL
-    ros.wait_gone('recorder')  # its lease: no later node may be handed its ports before
+    # Its DDS lease (~20 s): no later node may be handed its ports before. The evidence is
+    # its subscription leaving discovery; its node name can outlive it in the ROS graph
+    # (seen once past 60 s, a late ros_discovery_info), which is not the lease.
+    ros.wait_for(lambda: not recorder_endpoints(ros) & killed, 60,
+                 "the killed recorder's subscription to leave discovery (its lease)")
     meta = yaml.safe_load((out / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert meta['custom_data']['arm_sim.recording'] == 'open', 'the recorder never closed it'
     counts = {t['topic_metadata']['name']: t['message_count']
