@@ -9,6 +9,7 @@ objects messages and wall time; see :mod:`arm_dynamics.timing` for the timing mo
 
 from __future__ import annotations
 
+import math
 import time
 
 from rclpy.node import Node
@@ -16,7 +17,7 @@ from rclpy.timer import Timer
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
-from std_srvs.srv import Trigger
+from std_srvs.srv import SetBool, Trigger
 
 from arm_common.node import (
     ConfigError,
@@ -32,29 +33,38 @@ from arm_dynamics.limits import JointLimits
 from arm_dynamics.robot import ROBOT_PARAMS
 from arm_dynamics.simulation import CommandError, SimulatorCore, make_model, validate_command
 from arm_dynamics.timing import (
-    ADVANCE,
+    APPLY,
     MAX_CATCH_UP,
     REMOVED_MODES,
     STALE,
     TIMING_MODES,
     Timekeeper,
     Window,
+    answer_tag,
     parse_answer_tag,
 )
+
+HOLD_LEASE = 30.0  # s (wall): a hold nobody released in this long is released (reported)
 
 SUMMARY = '''
 Simulates the 2-R arm (or the geared single link) and publishes joint_states
 (sensor_msgs/JointState: position rad, velocity rad/s, applied effort N m, stamped in
 simulated time) and clock (rosgraph_msgs/Clock); takes effort_controller/commands
 (std_msgs/Float64MultiArray, N m per joint, saturated at effort_limits). Service ~/reset
-(std_srvs/Trigger) restores the initial state. Reports on /diagnostics (statuses
-"simulator: summary" and one per problem or event kind, e.g. "simulator: overrun").
+(std_srvs/Trigger) restores the initial state; ~/hold (std_srvs/SetBool) holds simulated
+time at the current state (true; the reply's message names it, joint_states@SEC.NANOSEC)
+until released (false): the planner holds it while it plans a goal. Reports on
+/diagnostics (statuses "simulator: summary" and one per problem or event kind, e.g.
+"simulator: waiting_for_command").
 
-timing_mode: real_time (simulated time follows the wall clock times real_time_factor; the
-initial state is held until the first command) or lockstep (one control period,
-1/publish_rate, per valid command for the current state: deterministic, as fast as the
-closed loop runs; a silent controller makes time stand still and is reported, never
-replaced by zero torque). Simulated time is the only time that changes the physics.
+timing_mode: lockstep (one control period, 1/publish_rate, per valid command for the
+current state: deterministic, as fast as the closed loop runs), real_time (the same
+lockstep at wall-clock pace: simulated time never runs ahead of the wall clock times
+real_time_factor, and a late controller makes it wait: the results are lockstep's, bit for
+bit) or wall_clock (opt-in: periods integrated on the wall clock's schedule with whatever
+command is held then: the results depend on the machine). A silent controller makes time
+stand still and is reported, never replaced by zero torque (except in wall_clock).
+Simulated time is the only time that changes the physics.
 '''
 
 SIM_PARAMS: tuple[ParamSpec, ...] = (
@@ -74,19 +84,20 @@ SIM_PARAMS: tuple[ParamSpec, ...] = (
               'Initial and reset joint velocities (single_link_geared: first value = link '
               'speed)', 'rad/s', minimum=-1000.0, maximum=1000.0),
     ParamSpec('command_timeout', 'double', 0.5,
-              'Wall-clock time without a valid command that is reported. lockstep: time '
-              'keeps standing still (a WARN with the time waited); real_time: the torque '
-              'also goes to zero until commands return, as a drive watchdog would. 0 '
-              'disables', 's', minimum=0.0, maximum=3600.0),
+              'Wall-clock time without a valid command that is reported (a WARN with the '
+              'time waited); time keeps standing still until the answer comes. wall_clock '
+              'only: the torque also goes to zero until commands return, as a drive '
+              'watchdog would. 0 disables', 's', minimum=0.0, maximum=3600.0),
     ParamSpec('timing_mode', 'string', 'real_time', 'How simulated time advances',
               choices=TIMING_MODES, hints=tuple(REMOVED_MODES.items())),
     ParamSpec('wait_for_command', 'bool', True,
-              'real_time: hold the initial state (no integration, time stands at its start) '
+              'wall_clock: hold the initial state (no integration, time stands at its start) '
               'until the first valid command; false = integrate from the start (the arm '
-              'falls until commanded)'),
+              'falls until commanded). lockstep and real_time always wait for it'),
     ParamSpec('real_time_factor', 'double', 1.0,
-              'Simulated seconds per wall second in real_time mode', 'x', minimum=0.0,
-              strict_min=True, maximum=1000.0),
+              'Simulated seconds per wall second that real_time (and wall_clock) paces to; '
+              'real_time never runs faster, and slower only while the loop cannot keep up',
+              'x', minimum=0.0, strict_min=True, maximum=1000.0),
     ParamSpec('pause_at', 'double', -1.0,
               'Simulated time at which the simulation pauses (state held, commands kept); '
               'set it later, or negative, to resume. Negative = never', 's', maximum=1e9),
@@ -186,14 +197,17 @@ class SimulatorNode(Node):
         self.create_subscription(Float64MultiArray, 'effort_controller/commands',
                                  self._on_command, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
+        self.create_service(SetBool, '~/hold', self._on_hold)
         self.diag = Diagnostics(self, sim_time=lambda: self.core.time)
-        self.timed_out = False  # real_time watchdog: torque zeroed until commands return
+        self.timed_out = False  # wall_clock watchdog: torque zeroed until commands return
         self.last_command_wall = time.monotonic_ns()
-        self.pending = False  # lockstep: the current state's answer is held (paused)
+        self.held_since: int | None = None  # wall ns a client's hold began
+        self.holds = 0
         self.wait_reported: float | None = None  # wall s waited at the last wait report
         self.window: Window | None = None
         self.windows = 0  # reporting windows closed (each ~1 s of wall time)
         self.rt_timer: Timer | None = None
+        self._anchors = 0  # keeper.anchors when the pacing timer was last aligned
         self._make_rt_timer()
         self.create_timer(0.05, self._housekeeping, clock=steady_clock())
         on_parameter_changes(self, SIM_PARAMS, self._validate_change, self._apply_change)
@@ -244,20 +258,23 @@ class SimulatorNode(Node):
         if 'pause_at' in changed:
             k.pause_at_ns = _pause_ns(changed['pause_at'])
         k.reanchor(time.monotonic_ns())
-        if self.pending and not k.paused(self.core.time_ns) and self.mode == 'lockstep':
-            self.pending = False
-            self._step_and_publish()
+        self._try_step()
         self.get_logger().info(f'parameters changed: {changed}')
 
     def _make_rt_timer(self) -> None:
-        """The real-time pacing timer (none in lockstep: commands pace it)."""
+        """The pacing timer: real_time (one tick per control period of wall time, aligned
+        with the pacing anchor) and wall_clock; none in lockstep: answers pace it."""
         if self.rt_timer is not None:
             self.destroy_timer(self.rt_timer)
             self.rt_timer = None
-        if self.keeper.mode != 'real_time':
+        if self.keeper.mode == 'lockstep':
             return
-        wall_period = self.core.period_ns * 1e-9 / self.params['real_time_factor']
-        self.rt_timer = self.create_timer(max(wall_period, 1e-4), self._on_rt_tick,
+        # Whole nanoseconds, rounded up: a tick never fires before its period is due
+        # (rclpy truncates the float seconds it is given).
+        wall_ns = max(math.ceil(self.core.period_ns / self.params['real_time_factor']),
+                      100_000)
+        callback = self._on_rt_tick if self.mode == 'real_time' else self._on_wall_tick
+        self.rt_timer = self.create_timer((wall_ns + 0.5) * 1e-9, callback,
                                           clock=steady_clock())
 
     # ------------------------------------------------------------------ stepping
@@ -285,7 +302,20 @@ class SimulatorNode(Node):
                                   f'{outside}', q=core.q.tolist(), qd=core.qd.tolist())
         self.publish_state(new_state=True)
 
+    def _try_step(self) -> None:
+        """Answered modes: integrate the current period if its answer is in and time may
+        move (real_time: its end is due on the wall clock)."""
+        k = self.keeper
+        if k.may_step(self.core.time_ns, time.monotonic_ns()):
+            self._step_and_publish()
+        if k.anchors != self._anchors and self.rt_timer is not None:
+            self._anchors = k.anchors
+            self.rt_timer.reset()  # ticks from the new anchor: each lands on a due time
+
     def _on_rt_tick(self) -> None:
+        self._try_step()
+
+    def _on_wall_tick(self) -> None:
         k = self.keeper
         overruns = k.overruns
         steps = 0
@@ -324,13 +354,10 @@ class SimulatorNode(Node):
         if self.timed_out:
             self.timed_out = False
             self.get_logger().info('effort commands resumed')
-        if verdict == ADVANCE:
-            k.after_lockstep_advance()
-            self._step_and_publish()
-        elif self.mode == 'lockstep':
-            self.pending = True  # paused: advance once pause_at moves
-        else:
-            self._on_rt_tick()  # real_time: the answer may be what a due period waits for
+        if verdict == APPLY:
+            self._on_wall_tick()  # wall_clock: the answer may be what a due period waits for
+        else:  # answered (HOLD: kept until the pause or hold ends)
+            self._try_step()
 
     def publish_state(self, new_state: bool = False) -> None:
         view = self.core.joint_view()
@@ -358,16 +385,21 @@ class SimulatorNode(Node):
                               'time stands still until one comes (lockstep)',
                               waited_wall=f'{waited:.3f}')
         timeout = _ns(self.params['command_timeout'])
-        if self.mode == 'real_time' and (k.holding() or self.paused):
+        if self.mode == 'wall_clock' and (k.holding() or k.stopped(sim)):
             self.last_command_wall = now  # no commands are due
-        elif (self.mode == 'real_time' and timeout > 0 and k.started and not self.timed_out
+        elif (self.mode == 'wall_clock' and timeout > 0 and k.started and not self.timed_out
                 and now - self.last_command_wall > timeout):
             self.timed_out = True
             self.core.clear_command()
             self.diag.problem('command_timeout', f"no valid effort command for "
                               f"{self.params['command_timeout']:g} s (wall): torque set to "
-                              'zero until commands return (real_time watchdog)',
+                              'zero until commands return (wall_clock watchdog)',
                               command_timeout=f"{self.params['command_timeout']:g}")
+        if self.held_since is not None and now - self.held_since > HOLD_LEASE * 1e9:
+            self.diag.problem('hold_expired', f'simulated time was held at t={self.core.time:.3f}'
+                              f' s for {HOLD_LEASE:g} s (wall) and nobody released it: '
+                              'released (did the planner die?)')
+            self._release(now)
         if k.heartbeat_due(sim, now):
             self.publish_state()
         win = k.window(sim, now)
@@ -379,9 +411,18 @@ class SimulatorNode(Node):
                     'late_periods', f'{win.late} of {win.periods} control periods in the last '
                     f'{win.wall_s:.1f} s (wall) were integrated before the controller answered '
                     f'their state: achieved {win.answered_rate:.0f} Hz of '
-                    f"{self.params['publish_rate']:g} Hz (real_time)",
+                    f"{self.params['publish_rate']:g} Hz (wall_clock: the results depend on "
+                    'the machine)',
                     late_fraction=f'{win.late_fraction:.4f}',
                     achieved_control_rate=f'{win.answered_rate:.1f}')
+            if win.waits and self.mode == 'real_time':
+                self.diag.problem(
+                    'real_time_waits', f'simulated time waited for the controller {win.waits}'
+                    f' time(s) in the last {win.wall_s:.1f} s (wall), {win.waited_s:.3f} s in '
+                    f'all: achieved {win.real_time_factor:.2f}x of '
+                    f'{k.real_time_factor:g}x real time (the results are unaffected)',
+                    waits=win.waits, waited_wall=f'{win.waited_s:.3f}',
+                    achieved_real_time_factor=f'{win.real_time_factor:.3f}')
             self._summarise()
 
     def _summarise(self) -> None:
@@ -390,6 +431,8 @@ class SimulatorNode(Node):
             level, message = 'ERROR', core.diverged
         elif self.paused:
             level, message = 'OK', f'paused at t={core.time:.3f} s (pause_at)'
+        elif k.held:
+            level, message = 'OK', f'held at t={core.time:.3f} s (~/hold: a goal is planned)'
         elif k.holding():
             level, message = 'OK', 'holding the initial state until the first command'
         elif not k.started:
@@ -397,7 +440,7 @@ class SimulatorNode(Node):
         elif self.timed_out:
             level, message = 'WARN', 'command timeout: applying zero torque'
         elif k.overdue_s(core.time_ns, time.monotonic_ns()) is not None:
-            level, message = 'WARN', 'waiting for a command (lockstep: time stands still)'
+            level, message = 'WARN', f'waiting for a command ({self.mode}: time stands still)'
         else:
             level, message = 'OK', f'running ({self.mode})'
         self.diag.set(level, message, timing_mode=self.mode,
@@ -408,8 +451,58 @@ class SimulatorNode(Node):
                       control_periods=k.periods, late_periods=k.late_periods,
                       late_waits=k.late_waits, longest_wait_wall=f'{k.longest_wait_s:.3f}',
                       overruns=k.overruns, simulated_time_given_up=f'{k.behind_s:.3f}',
+                      real_time_waits=k.waits, real_time_waited_wall=f'{k.waited_s:.3f}',
+                      real_time_slips=k.slips,
+                      paced_real_time_factor=f'{k.paced_real_time_factor:.3f}',
+                      held='' if not k.held else f'{core.time:.9f}', holds=self.holds,
                       saturated_joints=[n for n, s in zip(core.joint_names, core.saturated)
                                         if s])
+
+    def timing_summary(self) -> str:
+        """One line on how simulated time was paced (logged at shutdown; ``arm-sim
+        bringup`` prints it)."""
+        k = self.keeper
+        text = (f'timing: {self.mode}, {k.periods} control periods to t={self.core.time:.3f} s'
+                f', {k.late_waits} wait(s) for the controller longer than command_timeout '
+                f'(longest {k.longest_wait_s:.3f} s wall)')
+        if self.mode == 'real_time':
+            text += (f'; achieved {k.paced_real_time_factor:.3f}x of {k.real_time_factor:g}x'
+                     f' real time while running, time waited for the controller {k.waits} '
+                     f'time(s) ({k.waited_s:.3f} s wall), pacing restarted {k.slips} time(s);'
+                     ' the results are those of lockstep')
+        elif self.mode == 'wall_clock':
+            text += (f'; {k.late_periods} late period(s) integrated without their answer '
+                     '(wall_clock: the results depend on the machine)')
+        return text
+
+    def destroy_node(self) -> None:
+        self.get_logger().info(self.timing_summary())
+        super().destroy_node()
+
+    def _on_hold(self, request: SetBool.Request, response: SetBool.Response):
+        """Hold simulated time at the current state (``data`` true) or release it. The
+        reply names the state held, ``joint_states@SEC.NANOSEC``; an answer to it that
+        comes meanwhile is kept and applied on release, as while paused."""
+        now = time.monotonic_ns()
+        if request.data:
+            if not self.keeper.held:
+                self.holds += 1
+            self.keeper.held = True
+            self.held_since = now
+        elif self.keeper.held:
+            self._release(now)
+        response.success = True
+        response.message = answer_tag(self.core.time_ns)
+        return response
+
+    def _release(self, now: int) -> None:
+        self.keeper.held = False
+        self.held_since = None
+        self.keeper.reanchor(now)
+        if self.mode == 'wall_clock':
+            self._on_wall_tick()
+        else:
+            self._try_step()
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response):
         self.core.reset()

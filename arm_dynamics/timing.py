@@ -5,35 +5,50 @@ the states it publishes and the wall clock, and does what it answers. Tests driv
 fake clock.
 
 The rule (README, "Time"): simulated time is the only time that changes the physics, the
-control or a reported figure; the wall clock only decides when to *report* that something is
-late or missing (and, in ``real_time``, how fast simulated time is paced).
+control or a reported figure; the wall clock only *paces* simulated time and decides when to
+*report* that something is late or missing.
 
 Timing modes (:data:`TIMING_MODES`):
 
 * ``lockstep`` -- the simulator advances one control period only on a valid command for the
   current state. A command from arm_sim's controller names the state it answers (see
   :func:`answer_tag`); an answer to any other state is stale and ignored. An untagged
-  command (e.g. ros2_control's ForwardCommandController) counts as the answer to the
-  current state. While no answer comes, time stands still: the current state is re-sent
-  every :data:`HEARTBEAT_NS` of wall time (so a late, restarted or stalled controller gets
-  it) and a wait longer than ``report_after_ns`` is reported with the wall time waited.
-  Nothing that the wall clock does changes the recorded states.
-* ``real_time`` -- simulated time follows the wall clock times ``real_time_factor``, one
-  published state per control period. Until the first valid command (``hold_until_command``)
-  the initial state is held and time stands at its start. A period is integrated once its
-  state is answered, or at the latest :data:`GRACE_PERIODS` period after it was due; one
-  integrated without the answer to its state is *late*: late periods are counted and
-  reported with the achieved control rate.
+  command (e.g. ros2_control's ForwardCommandController, or a timer-driven controller)
+  counts as the answer to the current state, the latest one published. While no answer
+  comes, time stands still: the current state is re-sent every :data:`HEARTBEAT_NS` of wall
+  time (so a late, restarted or stalled controller gets it) and a wait longer than
+  ``report_after_ns`` is reported with the wall time waited. Nothing that the wall clock
+  does changes the recorded states.
+* ``real_time`` -- lockstep at wall-clock pace: every rule of lockstep, and in addition a
+  period is integrated no earlier than its end is due on the wall clock (simulated time
+  never runs ahead of ``wall x real_time_factor`` from the pacing anchor). A late
+  controller makes simulated time wait (counted as ``waits``, with the wall time waited);
+  after falling more than :data:`MAX_LAG_PERIODS` periods behind the wall clock, for any
+  reason, pacing restarts from now (a ``slip``) instead of rushing to catch up. The results
+  are those of lockstep, bit for bit; only the achieved real-time factor depends on the
+  machine.
+* ``wall_clock`` -- explicit opt-in, the pre-0.4 ``real_time``: each period is integrated
+  on the wall clock's schedule with the command held then, answered or not, so **the
+  results depend on the machine** (how fast the controller answers). A period waits at
+  most :data:`GRACE_PERIODS` period past its due time for its answer; one integrated
+  without it is *late* and counted. For studying a machine's timing, never for figures.
 
 ``as_fast_as_possible`` was removed: free-running steps outrun any external controller (the
 arm diverged with the shipped one); ``lockstep`` runs as fast as the closed loop allows.
+
+Holds: a client (the planner, while it plans a goal) can hold simulated time at the current
+state (:attr:`Timekeeper.held`), as ``pause_at`` does at a set time: the state's answer is
+kept and applied once the hold is released, so a goal takes effect at a simulated time that
+does not depend on how long planning took.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-TIMING_MODES = ('real_time', 'lockstep')
+TIMING_MODES = ('real_time', 'lockstep', 'wall_clock')
+#: Modes in which simulated time advances only on the answer to the current state.
+ANSWERED_MODES = ('real_time', 'lockstep')
 #: Modes that are refused, with the reason.
 REMOVED_MODES = {
     'as_fast_as_possible': 'as_fast_as_possible was removed: free-running steps outrun any '
@@ -41,8 +56,9 @@ REMOVED_MODES = {
                            'the closed loop runs, deterministic) or real_time',
 }
 HEARTBEAT_NS = 200_000_000  # wall: how often a state nobody answered is re-sent
-MAX_CATCH_UP = 20  # real_time: periods behind before it counts as an overrun
-GRACE_PERIODS = 1  # real_time: how long past its due time a period waits for its answer
+MAX_CATCH_UP = 20  # wall_clock: periods behind before it counts as an overrun
+GRACE_PERIODS = 1  # wall_clock: how long past its due time a period waits for its answer
+MAX_LAG_PERIODS = 5  # real_time: periods behind the wall clock before pacing restarts
 
 #: Lockstep protocol: a command may name the joint state it answers in
 #: ``layout.dim[0].label`` as ``joint_states@<sec>.<nanosec>`` (arm_sim's controller does).
@@ -66,9 +82,9 @@ def parse_answer_tag(label: str) -> int | None:
 
 
 #: :meth:`Timekeeper.on_command` verdicts.
-ADVANCE = 'advance'  # hold the command and advance one period now (lockstep)
-HOLD = 'hold'  # hold the command; time may not move yet (lockstep, paused)
-APPLY = 'apply'  # hold the command; time moves on its own schedule (real_time)
+ADVANCE = 'advance'  # hold the command; the current state is answered: step when allowed
+HOLD = 'hold'  # hold the command; time may not move yet (paused or held)
+APPLY = 'apply'  # hold the command; time moves on its own schedule (wall_clock)
 STALE = 'stale'  # ignore: it answers another state
 
 
@@ -80,6 +96,8 @@ class Window:
     sim_s: float
     periods: int
     late: int
+    waits: int = 0  # real_time: periods whose answer came after they were due
+    waited_s: float = 0.0  # real_time: wall time those answers were overdue, summed
 
     @property
     def real_time_factor(self) -> float:
@@ -103,10 +121,11 @@ class Timekeeper:
     ----------
     mode : one of :data:`TIMING_MODES`.
     period_ns : int, ns > 0 -- the control period (one published state each).
-    real_time_factor : > 0 -- real_time: simulated seconds per wall second.
-    hold_until_command : real_time: hold the initial state until the first valid command.
-    report_after_ns : int, ns >= 0 -- lockstep: a wait for an answer longer than this (wall)
-        is reported; 0 = never.
+    real_time_factor : > 0 -- real_time and wall_clock: simulated seconds per wall second.
+    hold_until_command : wall_clock: hold the initial state until the first valid command
+        (the answered modes always wait for it).
+    report_after_ns : int, ns >= 0 -- a wait for an answer longer than this (wall) is
+        reported; 0 = never.
 
     All times are integer nanoseconds; ``wall_ns`` is any monotonic clock.
     """
@@ -126,25 +145,34 @@ class Timekeeper:
         self.hold_until_command = hold_until_command
         self.report_after_ns = report_after_ns
         self.pause_at_ns: int | None = None
-        self.started = False  # a valid command has arrived (real_time starts pacing then)
+        self.held = False  # a client holds time at the current state (e.g. while planning)
+        self.started = False  # a valid command has arrived
         self.anchor: tuple[int, int] | None = None  # (wall ns, sim ns) of real-time pacing
+        self.anchors = 0  # how often pacing was (re)anchored: the node aligns its timer
         self.last_publish_ns: int | None = None
-        self.waiting_since: int | None = None  # lockstep: wall ns the current state went out
-        self.answered = False  # lockstep: the current state has its command
-        self.answered_stamp: int | None = None  # real_time: latest state answered [sim ns]
-        self.fresh = False  # real_time: an untagged command came since the last period
-        self.tagged = False  # real_time: the controller names the states it answers
+        self.waiting_since: int | None = None  # wall ns the current state went out
+        self.answered = False  # answered modes: the current state has its command
+        self.answered_wall: int | None = None  # wall ns that answer came
+        self.answered_stamp: int | None = None  # wall_clock: latest state answered [sim ns]
+        self.fresh = False  # wall_clock: an untagged command came since the last period
+        self.tagged = False  # wall_clock: the controller names the states it answers
         # counters (since start)
         self.commands = 0
         self.stale = 0
         self.periods = 0
-        self.late_periods = 0
-        self.overruns = 0
-        self.behind_s = 0.0  # real_time: simulated time given up by overruns
-        self.late_waits = 0  # lockstep: waits longer than report_after_ns
+        self.late_periods = 0  # wall_clock
+        self.overruns = 0  # wall_clock
+        self.behind_s = 0.0  # wall_clock: simulated time given up by overruns
+        self.late_waits = 0  # answered modes: waits longer than report_after_ns
         self.longest_wait_s = 0.0
-        # (wall ns, sim ns, periods, late) at the reporting window's start
-        self._win: tuple[int | None, int, int, int] = (None, 0, 0, 0)
+        self.waits = 0  # real_time: periods whose answer came after they were due
+        self.waited_s = 0.0  # real_time: wall time those answers were overdue, summed
+        self.slips = 0  # real_time: pacing restarted after falling behind the wall clock
+        self.paced_wall_ns = 0  # real_time: wall time of paced running (no pause, hold)
+        self.paced_sim_ns = 0  # real_time: simulated time advanced over it
+        self._last_step_wall: int | None = None  # real_time: wall ns of the previous step
+        # (wall ns, sim ns, periods, late, waits, waited) at the reporting window's start
+        self._win: tuple[int | None, int, int, int, int, float] = (None, 0, 0, 0, 0, 0.0)
 
     # ------------------------------------------------------------------ state
     def set_mode(self, mode: str) -> None:
@@ -152,19 +180,30 @@ class Timekeeper:
             raise ValueError(REMOVED_MODES.get(mode, f'unknown timing mode {mode!r}'))
         self.mode = mode
         self.anchor = None
+        self._last_step_wall = None
+
+    @property
+    def answered_mode(self) -> bool:
+        """Does time advance only on the answer to the current state?"""
+        return self.mode in ANSWERED_MODES
 
     def paused(self, sim_ns: int) -> bool:
         """Has simulated time reached ``pause_at``?"""
         return self.pause_at_ns is not None and sim_ns >= self.pause_at_ns
 
+    def stopped(self, sim_ns: int) -> bool:
+        """Paused at ``pause_at`` or held by a client: time may not move."""
+        return self.held or self.paused(sim_ns)
+
     def holding(self) -> bool:
-        """real_time: the initial state is held until the first command."""
-        return self.mode == 'real_time' and self.hold_until_command and not self.started
+        """wall_clock: the initial state is held until the first command."""
+        return self.mode == 'wall_clock' and self.hold_until_command and not self.started
 
     def reanchor(self, wall_ns: int) -> None:
-        """Restart real-time pacing, and a lockstep wait, from now (after a pause, a reset or
-        a parameter change): time spent paused is not late."""
+        """Restart real-time pacing, and a wait for an answer, from now (after a pause, a
+        hold, a reset or a parameter change): time spent stopped is not late."""
         self.anchor = None
+        self._last_step_wall = None
         if self.waiting_since is not None:
             self.waiting_since = wall_ns
 
@@ -176,11 +215,14 @@ class Timekeeper:
         if new_state:
             self.waiting_since = wall_ns
             self.answered = False
+            self.answered_wall = None
 
     def on_command(self, answers: int | None, sim_ns: int, wall_ns: int) -> str:
         """A valid command arrived, answering the state stamped ``answers`` [ns] (None:
-        untagged). Returns :data:`ADVANCE`, :data:`HOLD`, :data:`APPLY` or :data:`STALE`."""
-        if self.mode == 'lockstep':
+        untagged: the current state). Returns :data:`ADVANCE` (answered: step once
+        :meth:`may_step` allows), :data:`HOLD` (answered, but time is stopped),
+        :data:`APPLY` (wall_clock) or :data:`STALE` (ignore it)."""
+        if self.answered_mode:
             if answers is not None and answers != sim_ns:
                 self.stale += 1
                 return STALE
@@ -191,8 +233,10 @@ class Timekeeper:
                 self.longest_wait_s = max(self.longest_wait_s, waited)
                 if self.report_after_ns and waited * 1e9 > self.report_after_ns:
                     self.late_waits += 1
+            if not self.answered:
+                self.answered_wall = wall_ns
             self.answered = True
-            return HOLD if self.paused(sim_ns) else ADVANCE
+            return HOLD if self.stopped(sim_ns) else ADVANCE
         self.commands += 1
         if answers is not None:
             self.tagged = True
@@ -206,8 +250,56 @@ class Timekeeper:
             self.anchor = None
         return APPLY
 
+    # ------------------------------------------------------------------ answered modes
+    def may_step(self, sim_ns: int, wall_ns: int) -> bool:
+        """Answered modes: may the period starting at ``sim_ns`` be integrated now? True
+        once the current state is answered and time is not stopped (lockstep), and, in
+        real_time, once the period's end is due on the wall clock. When it returns True the
+        caller integrates the period and publishes the new state. Anchors real-time pacing
+        at the first chance (the first period then waits one period of wall time) and
+        restarts it after falling more than :data:`MAX_LAG_PERIODS` behind."""
+        if not self.answered_mode or not self.answered or self.stopped(sim_ns):
+            return False
+        if self.mode == 'lockstep':
+            self.periods += 1
+            return True
+        if self.anchor is None:
+            self.anchor = (wall_ns, sim_ns)
+            self.anchors += 1
+            return False
+        wall0, sim0 = self.anchor
+        # The end of this period, on the wall clock (1 ns of slack for float rounding).
+        ahead = (sim_ns + self.period_ns - sim0) / self.real_time_factor - (wall_ns - wall0)
+        if ahead > 1.0:
+            return False
+        lag = -ahead  # [wall ns] this period's end is overdue by
+        answered = self.answered_wall if self.answered_wall is not None else wall_ns
+        due = wall_ns - lag
+        if answered > due:  # the controller's answer came after the period was due
+            self.waits += 1
+            self.waited_s += (answered - due) * 1e-9
+        if lag > MAX_LAG_PERIODS * self.period_ns / self.real_time_factor:
+            # Far behind (a stalled controller, a loaded machine): go on at the same pace
+            # from here rather than rushing through the lost time.
+            self.slips += 1
+            self.anchor = (wall_ns, sim_ns + self.period_ns)
+            self.anchors += 1
+        if self._last_step_wall is not None:
+            self.paced_wall_ns += wall_ns - self._last_step_wall
+            self.paced_sim_ns += self.period_ns
+        self._last_step_wall = wall_ns
+        self.periods += 1
+        return True
+
+    @property
+    def paced_real_time_factor(self) -> float:
+        """real_time: simulated s per wall s over all paced running (pauses, holds and
+        waits before the first command excluded); 0 before any."""
+        return self.paced_sim_ns / self.paced_wall_ns if self.paced_wall_ns else 0.0
+
+    # ------------------------------------------------------------------ wall_clock
     def periods_due(self, sim_ns: int, wall_ns: int) -> int:
-        """real_time: how many control periods to advance now (publishing each); ask
+        """wall_clock: how many control periods to advance now (publishing each); ask
         again after each one (and after each command): the answer may change.
 
         With a controller that names the states it answers, a period is stepped only once
@@ -215,7 +307,7 @@ class Timekeeper:
         overdue (then it counts as late): a timer that fires late no longer makes the
         simulator integrate states nobody could answer yet, and an answer that comes while
         the simulator is behind steps it at once."""
-        if self.mode != 'real_time' or self.holding() or self.paused(sim_ns):
+        if self.mode != 'wall_clock' or self.holding() or self.stopped(sim_ns):
             return 0
         if self.anchor is None:
             self.anchor = (wall_ns, sim_ns)
@@ -238,7 +330,7 @@ class Timekeeper:
         return due
 
     def before_advance(self, sim_ns: int) -> bool:
-        """real_time: the period starting at ``sim_ns`` is about to be integrated; returns
+        """wall_clock: the period starting at ``sim_ns`` is about to be integrated; returns
         True (and counts it) if the controller did not answer that state in time."""
         if self.tagged:
             late = self.answered_stamp is None or self.answered_stamp < sim_ns
@@ -249,36 +341,34 @@ class Timekeeper:
         self.late_periods += late
         return late
 
-    def after_lockstep_advance(self) -> None:
-        self.periods += 1
-
     # ------------------------------------------------------------------ wall-clock checks
     def heartbeat_due(self, sim_ns: int, wall_ns: int) -> bool:
-        """Should the current state be re-sent now? (lockstep while unanswered, real_time
-        while holding the initial state; never while paused)."""
-        if self.paused(sim_ns) or self.last_publish_ns is None:
+        """Should the current state be re-sent now? (answered modes while unanswered,
+        wall_clock while holding the initial state; never while paused or held)."""
+        if self.stopped(sim_ns) or self.last_publish_ns is None:
             return False
-        waiting = (self.mode == 'lockstep' and not self.answered) or self.holding()
+        waiting = (self.answered_mode and not self.answered) or self.holding()
         return waiting and wall_ns - self.last_publish_ns >= HEARTBEAT_NS
 
     def overdue_s(self, sim_ns: int, wall_ns: int) -> float | None:
-        """lockstep: wall seconds waited for the current state's answer, once that exceeds
-        ``report_after_ns`` (None otherwise, while paused, and before the first command:
-        no controller has come yet)."""
-        if (self.mode != 'lockstep' or self.answered or self.waiting_since is None
-                or not self.report_after_ns or self.paused(sim_ns) or not self.started):
+        """Answered modes: wall seconds waited for the current state's answer, once that
+        exceeds ``report_after_ns`` (None otherwise, while paused or held, and before the
+        first command: no controller has come yet)."""
+        if (not self.answered_mode or self.answered or self.waiting_since is None
+                or not self.report_after_ns or self.stopped(sim_ns) or not self.started):
             return None
         waited = wall_ns - self.waiting_since
         return waited * 1e-9 if waited > self.report_after_ns else None
 
     def window(self, sim_ns: int, wall_ns: int, length_ns: int = 1_000_000_000) -> Window | None:
         """Close the current reporting window if it is ``length_ns`` (wall) old."""
-        w0, s0, p0, l0 = self._win
+        w0, s0, p0, l0, n0, d0 = self._win
+        now = (wall_ns, sim_ns, self.periods, self.late_periods, self.waits, self.waited_s)
         if w0 is None:
-            self._win = (wall_ns, sim_ns, self.periods, self.late_periods)
+            self._win = now
             return None
         if wall_ns - w0 < length_ns:
             return None
-        self._win = (wall_ns, sim_ns, self.periods, self.late_periods)
+        self._win = now
         return Window((wall_ns - w0) * 1e-9, (sim_ns - s0) * 1e-9, self.periods - p0,
-                      self.late_periods - l0)
+                      self.late_periods - l0, self.waits - n0, self.waited_s - d0)

@@ -114,8 +114,8 @@ def test_effort_is_saturated_at_the_limits(ros, launch):
     assert list(states[-1].effort) == [60.0, -20.0]
 
 
-def test_command_timeout_sets_torque_to_zero_and_reports(ros, launch):
-    launch('simulator', params={'timing_mode': 'real_time', 'command_timeout': 0.3})
+def test_wall_clock_opt_in_command_timeout_sets_torque_to_zero_and_reports(ros, launch):
+    launch('simulator', params={'timing_mode': 'wall_clock', 'command_timeout': 0.3})
     states = ros.collect(JointState, 'joint_states')
     diags = ros.collect(DiagnosticArray, '/diagnostics')
     pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
@@ -134,7 +134,7 @@ def test_command_timeout_sets_torque_to_zero_and_reports(ros, launch):
 
 def test_reset_restores_the_initial_state(ros, launch):
     q0 = [0.3, -0.7]
-    launch('simulator', params={'timing_mode': 'real_time', 'initial_positions': q0,
+    launch('simulator', params={'timing_mode': 'wall_clock', 'initial_positions': q0,
                                 'wait_for_command': False})
     states = ros.collect(JointState, 'joint_states')
     ros.wait_for(lambda: states and abs(states[-1].position[0] - q0[0]) > 0.2,
@@ -275,9 +275,9 @@ def test_single_link_geared_model_follows_the_lectures_equation(ros, launch):
     assert last.position[1] == pytest.approx(ref.q[-1, 0] / n, abs=1e-8), 'link = motor / n'
 
 
-def test_real_time_reports_when_it_cannot_keep_up(ros, launch):
+def test_wall_clock_reports_when_it_cannot_keep_up(ros, launch):
     # 1000x real time at 1 ms steps needs a million RK4 steps per second: too many.
-    launch('simulator', params={'timing_mode': 'real_time', 'real_time_factor': 1000.0,
+    launch('simulator', params={'timing_mode': 'wall_clock', 'real_time_factor': 1000.0,
                                 'wait_for_command': False})
     diags = ros.collect(DiagnosticArray, '/diagnostics')
     overrun = ros.wait_for(lambda: statuses(diags, '/simulator', 'overrun'),
@@ -348,12 +348,48 @@ def test_real_time_holds_the_initial_state_until_the_first_command(ros, launch):
     assert {stamp(m) for m in states} == {0.0}, 'time stands at its start'
     assert all(m.position == pytest.approx(q0, abs=0) for m in states), 'no integration'
     tau = ARM.gravity_vector(np.array(q0))  # holds the arm where it is
-    pub.publish(command(tau))
-    ros.wait_for(lambda: stamp(states[-1]) > 0.1, what='time to run after the command')
+    drive = Answerer(states, pub, tau)
+    ros.wait_for(lambda: drive() > 0.1, what='time to run once commands answer the states')
 
 
-def test_real_time_counts_periods_the_controller_did_not_answer(ros, launch):
-    launch('simulator', params={'timing_mode': 'real_time', 'command_timeout': 0.0})
+def test_real_time_is_lockstep_at_wall_clock_pace(ros, launch):
+    """Each period waits for its answer, as in lockstep (so the motion is lockstep's to the
+    bit), and is never integrated before its end is due on the wall clock."""
+    import time
+
+    launch('simulator', params={'timing_mode': 'real_time', 'real_time_factor': 2.0})
+    states: list = []
+    received: list[float] = []  # wall time each state came [s]
+
+    def keep(msg) -> None:
+        states.append(msg)
+        received.append(time.monotonic())
+
+    ros.node.create_subscription(JointState, 'joint_states', keep, 1000)
+    pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
+    ros.wait_for(lambda: states, what='first joint state')
+    tau = [8.0, -2.0]
+    sent = time.monotonic()
+    drive = Answerer(states, pub, tau)
+    ros.wait_for(lambda: drive() >= 0.5 - 1e-9, timeout=30, what='0.5 s of simulated time')
+    moving = [(stamp(m), w) for m, w in zip(states, received) if stamp(m) > 0]
+    for t, wall in moving:  # the simulator paces from an anchor after the first answer
+        assert t <= (wall - sent) * 2.0 + 1e-6, f'state at {t} s came {wall - sent:.4f} s ' \
+                                                 'after the first command: ahead of 2x'
+    # Lockstep's motion: one period per answer, the same physics (DOP853 to 1e-6 rad).
+    first = {stamp(m): m for m in states}
+    times = np.array(sorted(first))
+    assert np.allclose(np.diff(times), 0.01), 'one state per 10 ms period, none skipped'
+    q = np.array([first[t].position for t in times])
+    ref = solve_ivp(lambda _t, x: np.concatenate([x[2:], ARM.forward_dynamics(
+        x[:2], x[2:], tau)]), (0, times[-1]), [-0.4, 1.2, 0.0, 0.0], method='DOP853',
+        rtol=1e-12, atol=1e-12, t_eval=times)
+    err = np.abs(q - ref.y[:2].T).max()
+    assert err < 1e-6, f'published motion deviates from solve_ivp by {err:.2e} rad'
+
+
+def test_wall_clock_counts_periods_the_controller_did_not_answer(ros, launch):
+    launch('simulator', params={'timing_mode': 'wall_clock', 'command_timeout': 0.0})
     diags = ros.collect(DiagnosticArray, '/diagnostics')
     states = ros.collect(JointState, 'joint_states')
     pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')

@@ -86,8 +86,106 @@ def test_time_spent_paused_is_not_a_late_wait():
     assert k.overdue_s(P, wall_ns=5100 * MS) is None
 
 
-def test_real_time_holds_until_the_first_command_then_paces_on_the_wall_clock():
-    k = Timekeeper(mode='real_time', period_ns=P)
+def real_time(**kw) -> Timekeeper:
+    return Timekeeper(mode='real_time', period_ns=P, report_after_ns=500 * MS, **kw)
+
+
+def test_real_time_waits_for_the_answer_like_lockstep_however_late_the_wall_clock_is():
+    k = real_time()
+    k.on_published(0, wall_ns=0, new_state=True)
+    assert not k.may_step(0, wall_ns=10_000 * MS), 'no answer, no step: time stands'
+    assert k.heartbeat_due(0, wall_ns=HEARTBEAT_NS), 'the unanswered state is re-sent'
+    assert k.on_command(answers=P, sim_ns=0, wall_ns=10_000 * MS) == STALE
+    assert k.on_command(answers=0, sim_ns=0, wall_ns=10_000 * MS) == ADVANCE
+    assert not k.may_step(0, wall_ns=10_000 * MS), 'anchors pacing: due one period later'
+    assert not k.may_step(0, wall_ns=10_009 * MS), 'not due yet'
+    assert k.may_step(0, wall_ns=10_010 * MS), 'due and answered'
+    k.on_published(P, wall_ns=10_010 * MS, new_state=True)
+    assert not k.may_step(P, wall_ns=10_030 * MS), 'due long ago, but not answered'
+    assert k.periods == 1 and k.waits == 0
+
+
+def test_real_time_never_runs_ahead_of_the_wall_clock_times_the_factor():
+    for factor in (1.0, 2.0, 0.3, 20.0):
+        k = real_time(real_time_factor=factor)
+        wall, sim = 0, 0
+        k.on_published(sim, wall, True)
+        k.on_command(sim, sim, wall)
+        assert not k.may_step(sim, wall)  # anchor at (0, 0)
+        for _ in range(200):  # an instant controller: answers at once; poll every 0.1 ms
+            k.on_command(sim, sim, wall)
+            while not k.may_step(sim, wall):
+                wall += 100_000
+            sim += P
+            assert sim <= wall * factor + 1, f'sim {sim} ns ahead of wall {wall} ns x {factor}'
+            assert sim > (wall - 100_000) * factor - 1, 'and it steps as soon as it is due'
+            k.on_published(sim, wall, True)
+        assert k.waits == 0 and k.slips == 0
+        assert k.paced_real_time_factor == pytest.approx(factor, rel=1e-2)
+
+
+def test_real_time_counts_a_late_answer_as_a_wait_and_catches_up_a_small_lag():
+    k = real_time()
+    k.on_published(0, 0, True)
+    k.on_command(0, 0, 0)
+    k.may_step(0, 0)  # anchor (0, 0)
+    assert k.may_step(0, 10 * MS)
+    k.on_published(P, 10 * MS, True)
+    # the answer to P comes 25 ms late (due at 20 ms): time waited for it
+    assert not k.may_step(P, 45 * MS)
+    k.on_command(P, P, 45 * MS)
+    assert k.may_step(P, 45 * MS), 'overdue: steps at once'
+    assert k.waits == 1 and k.waited_s == pytest.approx(0.025)
+    k.on_published(2 * P, 45 * MS, True)
+    k.on_command(2 * P, 2 * P, 46 * MS)
+    assert k.may_step(2 * P, 46 * MS), 'still behind the anchor (due at 30 ms): catches up'
+    assert k.slips == 0
+
+
+def test_real_time_restarts_pacing_after_a_long_stall_instead_of_rushing():
+    k = real_time()
+    k.on_published(0, 0, True)
+    k.on_command(0, 0, 0)
+    k.may_step(0, 0)
+    stall = 1500 * MS  # the controller SIGSTOPped for 1.5 s
+    k.on_command(0, 0, stall)
+    assert k.may_step(0, stall)
+    assert k.slips == 1 and k.waits == 0, 'answered at once, so no wait; a slip'
+    k.on_published(P, stall, True)
+    k.on_command(P, P, stall + MS)
+    assert not k.may_step(P, stall + MS), 'paced from the new anchor: not due yet'
+    assert k.may_step(P, stall + P)
+
+
+def test_real_time_keeps_an_answer_while_held_and_steps_it_when_released():
+    k = real_time()
+    k.on_published(0, 0, True)
+    k.held = True
+    assert k.on_command(0, 0, MS) == HOLD
+    assert not k.may_step(0, 100 * MS)
+    assert not k.heartbeat_due(0, 10 * HEARTBEAT_NS), 'no re-sends while held'
+    assert k.overdue_s(0, 10_000 * MS) is None, 'a hold is not a late controller'
+    k.held = False
+    k.reanchor(5000 * MS)
+    assert not k.may_step(0, 5000 * MS)
+    assert k.may_step(0, 5010 * MS), 'the kept answer steps once released and due'
+    assert k.waits == 0
+
+
+def test_untagged_commands_answer_the_current_state_in_real_time():
+    k = real_time()
+    k.on_published(0, 0, True)
+    assert k.on_command(None, 0, 0) == ADVANCE
+    k.may_step(0, 0)
+    assert k.may_step(0, P)
+    k.on_published(P, P, True)
+    assert not k.may_step(P, 2 * P), 'one command, one period'
+    assert k.on_command(None, P, 2 * P) == ADVANCE
+    assert k.may_step(P, 2 * P)
+
+
+def test_wall_clock_opt_in_holds_until_the_first_command_then_integrates_on_schedule():
+    k = Timekeeper(mode='wall_clock', period_ns=P)
     assert k.holding() and k.periods_due(0, wall_ns=10_000 * MS) == 0
     k.on_published(0, wall_ns=0, new_state=True)
     assert k.heartbeat_due(0, wall_ns=HEARTBEAT_NS), 'the held state is re-sent'
@@ -95,14 +193,14 @@ def test_real_time_holds_until_the_first_command_then_paces_on_the_wall_clock():
     assert not k.holding()
     assert k.periods_due(0, wall_ns=1000 * MS) == 0  # anchors here
     assert k.periods_due(0, wall_ns=1035 * MS) == 3
-    fast = Timekeeper(mode='real_time', period_ns=P, real_time_factor=2.0,
+    fast = Timekeeper(mode='wall_clock', period_ns=P, real_time_factor=2.0,
                       hold_until_command=False)
     fast.periods_due(0, wall_ns=0)
     assert fast.periods_due(0, wall_ns=50 * MS) == 10
 
 
-def test_real_time_overrun_gives_up_time_beyond_the_catch_up_limit():
-    k = Timekeeper(mode='real_time', period_ns=P, hold_until_command=False)
+def test_wall_clock_overrun_gives_up_time_beyond_the_catch_up_limit():
+    k = Timekeeper(mode='wall_clock', period_ns=P, hold_until_command=False)
     k.periods_due(0, wall_ns=0)
     assert k.periods_due(0, wall_ns=1000 * MS) == MAX_CATCH_UP
     assert k.overruns == 1
@@ -111,8 +209,8 @@ def test_real_time_overrun_gives_up_time_beyond_the_catch_up_limit():
     assert k.periods_due(sim, wall_ns=1010 * MS) == 1, 'same pace from the new anchor'
 
 
-def test_real_time_late_periods_with_tagged_answers():
-    k = Timekeeper(mode='real_time', period_ns=P)
+def test_wall_clock_late_periods_with_tagged_answers():
+    k = Timekeeper(mode='wall_clock', period_ns=P)
     k.on_command(answers=0, sim_ns=0, wall_ns=0)
     assert not k.before_advance(0), 'state 0 was answered'
     assert k.before_advance(P), 'state P was not answered before its period ended'
@@ -126,8 +224,8 @@ def test_real_time_late_periods_with_tagged_answers():
     assert w is not None and w.periods == 0 and w.wall_s == pytest.approx(1.0)
 
 
-def test_real_time_waits_up_to_one_period_for_the_answer_then_steps_late():
-    k = Timekeeper(mode='real_time', period_ns=P)
+def test_wall_clock_waits_up_to_one_period_for_the_answer_then_steps_late():
+    k = Timekeeper(mode='wall_clock', period_ns=P)
     k.on_command(answers=0, sim_ns=0, wall_ns=0)
     k.periods_due(0, wall_ns=0)  # anchors
     assert k.periods_due(0, wall_ns=10 * MS) == 1, 'state 0 answered: step'
@@ -143,8 +241,8 @@ def test_real_time_waits_up_to_one_period_for_the_answer_then_steps_late():
     assert (k.periods, k.late_periods) == (3, 1)
 
 
-def test_real_time_late_periods_with_untagged_commands():
-    k = Timekeeper(mode='real_time', period_ns=P)
+def test_wall_clock_late_periods_with_untagged_commands():
+    k = Timekeeper(mode='wall_clock', period_ns=P)
     k.on_command(answers=None, sim_ns=0, wall_ns=0)
     assert not k.before_advance(0)
     assert k.before_advance(P), 'no command since the last period'
