@@ -278,7 +278,8 @@ class ControllerNode(Node):
         core = self.core
         moving = (self.active_msg is not None and core.last_time is not None
                   and core.trajectory is not None
-                  and core.last_time < core.start + core.trajectory.duration)
+                  and (core.next is not None
+                       or core.last_time < core.start + core.trajectory.duration))
         step = core.update(t, q, qd)
         if step.jump:
             self.diag.problem('time_jump', f'{step.jump}: trajectory dropped, holding the '

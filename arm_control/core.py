@@ -9,6 +9,13 @@ Time jumps: when the measured state's simulated time goes backwards (a restarted
 a bag replayed), leaps forward by more than ``jump_threshold``, or the state moves further
 in one step than its velocities allow (a reset), the reference is dropped and the measured
 position held; :attr:`Step.jump` says why. A repeated stamp (a re-sent state) is not a jump.
+
+A new trajectory takes over from the first state *after* its start time: the state at the
+start time itself (and any earlier one) is still answered with the previous reference, as
+joint_trajectory_controller executes the old trajectory until a new one's start. So the
+command answering a state never depends on whether that state or the trajectory reached
+the controller first: a trajectory planned from a held state (stamped with it) gives the
+same motion however the messages raced.
 """
 
 from __future__ import annotations
@@ -68,6 +75,7 @@ class ControllerCore:
         self.limits = limits
         self.trajectory: Trajectory | None = None
         self.start = 0.0
+        self.next: tuple[Trajectory, float] | None = None  # accepted, from a later state on
         self.last: tuple[float, np.ndarray, np.ndarray] | None = None  # (t, q, qd)
         self.trajectories_accepted = 0
         self.jumps = 0
@@ -101,15 +109,20 @@ class ControllerCore:
             raise StaleTrajectoryError(
                 f'trajectory ends in the past: it starts at t={start:.3f} s and ends at '
                 f't={start + times[-1]:.3f} s, but the state is at t={now:.3f} s')
-        self.trajectory = Trajectory(q, qd, times, pos, vel, acc)
-        self.start = start
+        traj = Trajectory(q, qd, times, pos, vel, acc)
+        if self.trajectory is None:
+            self.trajectory, self.start = traj, start
+        else:
+            self.next = (traj, start)  # takes over at the first state after ``start``
         self.trajectories_accepted += 1
-        return self.trajectory
+        return traj
 
     def hold(self, t: float, q: np.ndarray, qd: np.ndarray) -> None:
-        """Drop the reference and hold position ``q`` from ``t`` [s] on."""
+        """Drop the reference (and one waiting to take over) and hold position ``q`` from
+        ``t`` [s] on."""
         self.trajectory = Trajectory(q, qd, np.zeros(1), np.array([q], dtype=float))
         self.start = t
+        self.next = None
 
     def jump_reason(self, t: float, q: np.ndarray, qd: np.ndarray) -> str | None:
         """Why the state at ``t`` [s] does not continue the last one, or None."""
@@ -138,6 +151,8 @@ class ControllerCore:
             self.jumps += 1
             self.hold(t, q, qd)
             self.law.reset()
+        elif self.next is not None and t > self.next[1]:
+            (self.trajectory, self.start), self.next = self.next, None
         dt = 0.0 if self.last is None or jump else max(t - self.last[0], 0.0)
         self.last = (t, np.array(q, dtype=float), np.array(qd, dtype=float))
         assert self.trajectory is not None  # hold() set one if there was none

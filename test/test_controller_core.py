@@ -81,3 +81,26 @@ def test_a_trajectory_starting_in_the_future_holds_the_measured_position_until_t
         step = c.update(t, Q0, ZERO)
         assert np.array_equal(step.q_des, Q0) and np.array_equal(step.qd_des, ZERO), t
     assert np.allclose(c.update(4.0, Q0, ZERO).q_des, [0.2, 0.8]), 'then the motion'
+
+
+def test_a_trajectory_takes_over_after_its_start_state_whichever_came_first():
+    """The state at a trajectory's stamp is answered with the previous reference, whether
+    the trajectory reached the controller before or after that state: the motion never
+    depends on how the two messages raced."""
+    pts = [TrajectoryPoint(0.5, [0.2, 0.8], [0.0, 0.0], [0.0, 0.0])]
+    answers = []
+    for trajectory_first in (False, True):
+        c = core('computed_torque')
+        c.update(0.99, Q0, ZERO)  # holding the start
+        if trajectory_first:
+            c.set_trajectory(JOINTS, pts, 1.0, Q0, ZERO, now=0.99)
+            at_stamp = c.update(1.0, Q0, ZERO)
+        else:
+            at_stamp = c.update(1.0, Q0, ZERO)
+            c.set_trajectory(JOINTS, pts, 1.0, Q0, ZERO, now=1.0)
+        after = c.update(1.01, Q0, ZERO)
+        answers.append((at_stamp.command.tau, after.q_des, after.command.tau))
+        assert np.array_equal(at_stamp.q_des, Q0), 'the old reference at the stamp'
+        assert not np.array_equal(after.q_des, Q0), 'the new one from the next state'
+    for a, b in zip(*answers):
+        assert np.array_equal(a, b), 'bit for bit the same either way'

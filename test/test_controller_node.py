@@ -8,7 +8,7 @@ import signal
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Duration, Time
-from conftest import NewRun, count, statuses
+from conftest import NewRun, count, statuses, values
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -290,15 +290,22 @@ def reach_next_goal(ros, states, refs, pub, diags) -> None:
     assert np.abs(np.array(states[-1].position) - goal).max() < 1e-4, 'next goal reached'
 
 
-def test_controller_killed_mid_motion_then_restarted_holds_the_arm(ros, launch, suite):
-    states, refs, pub = suite(sim_params={'command_timeout': 0.3})
+@pytest.mark.parametrize('mode', ['lockstep', 'real_time'])
+def test_controller_killed_mid_motion_then_restarted_holds_the_arm(ros, launch, suite, mode):
+    """A dead controller stops time (in real time as in lockstep): no torque is zeroed by
+    a wall-clock timeout; one started 5 s later takes over where the arm is."""
+    states, refs, pub = suite(sim_params={'command_timeout': 0.3, 'timing_mode': mode})
     diags = ros.collect(DiagnosticArray, '/diagnostics')
     start_motion(ros, states, pub, diags)
     controller = next(p for p in launch.procs if p.name == 'controller')
     controller.stop(signal.SIGKILL)  # a crash: no goodbye
     assert ros.set_params('/simulator', pause_at=-1.0)[0].successful
-    ros.wait_for(lambda: problems(diags, '/simulator', 'waiting_for_command'), timeout=10,
-                 what="the simulator's report of the silent controller")
+
+    def waited() -> float:
+        return max((float(values(s).get('waited_wall', 0)) for s in
+                    statuses(diags, '/simulator', 'waiting_for_command')), default=0.0)
+    ros.wait_for(lambda: waited() >= 5.0, timeout=30,
+                 what="the simulator's report of 5 s without the controller")
     held = states[-1]
     n = len(states)
     ros.wait_for(lambda: len(states) > n + 2, what='states re-sent while waiting')
