@@ -22,6 +22,7 @@ from nav_msgs.msg import Path
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
+from std_srvs.srv import SetBool
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from arm_common.node import (
@@ -37,6 +38,7 @@ from arm_common.node import (
 from arm_common.params import ParamSpec
 from arm_dynamics.limits import JointLimits
 from arm_dynamics.robot import ROBOT_PARAMS
+from arm_dynamics.timing import parse_answer_tag
 from arm_planner.kinematics import PlanningError
 from arm_planner.planner import (
     ELBOW_CHOICES,
@@ -78,6 +80,13 @@ it now holds, and the planner plans the goal again from that state (event replan
 trajectory is re-sent (up to 10 times, 1 s apart, planned again from the latest state)
 until the controller confirms it on arm_controller/trajectory_status; a refusal there, or
 no confirmation, is reported as goal_refused_by_controller or goal_unsent.
+
+Goals take effect at a simulated time that does not depend on how long planning took: on
+each goal the planner first holds the simulator's time (its hold_service, std_srvs/SetBool,
+default simulator/hold) at the current state, plans from exactly that state, and releases
+the hold once the controller has confirmed (or refused) the trajectory, so the motion
+starts at the state it was planned from. Without that service (another simulator, a real
+arm) it plans from the latest joint state, as before.
 '''
 
 PLANNER_PARAMS: tuple[ParamSpec, ...] = (
@@ -118,6 +127,11 @@ PLANNER_PARAMS: tuple[ParamSpec, ...] = (
               maximum=0.99),
     ParamSpec('base_frame', 'string', 'base_link',
               'Frame of goals (an empty frame_id means this one) and of planner/path'),
+    ParamSpec('hold_service', 'string', 'simulator/hold',
+              "The simulator's hold service (std_srvs/SetBool), relative to the "
+              "planner's namespace: simulated time is held at the current state while a goal "
+              'is planned and confirmed, so it starts exactly there; empty = never hold',
+              read_only=True),
 )
 
 
@@ -216,6 +230,14 @@ class PlannerNode(Node):
         self.pending: tuple | None = None  # (plan, wall deadline) awaiting a controller
         # A goal that came before the first joint state, and its wall deadline.
         self.held_goal: tuple[tuple[float, float], float] | None = None
+        # Holding the simulator's time while a goal is planned (see SUMMARY).
+        self.hold_client = (self.create_client(SetBool, p['hold_service'])
+                            if p['hold_service'] else None)
+        self.holding = False  # we hold the simulator's time
+        self.hold_request = 0  # the goal whose hold reply is awaited (its number)
+        self.goals = 0
+        # A goal waiting for the held state: (goal, its stamp ns, wall deadline).
+        self.awaiting: tuple[tuple[float, float], int, float] | None = None
         self.create_timer(0.02, self._send_pending, clock=steady_clock())
         on_parameter_changes(self, PLANNER_PARAMS, self._validate_change, self._apply_change)
         self.get_logger().info(f"planner ready: mode {p['mode']}, effort limits "
@@ -270,6 +292,9 @@ class PlannerNode(Node):
             if self.held_goal is not None:  # a goal waited for this first state
                 goal, self.held_goal = self.held_goal[0], None
                 self._plan(goal, sends=0)
+            if self.awaiting is not None and self.t_ns == self.awaiting[1]:
+                goal, self.awaiting = self.awaiting[0], None  # the held state: plan from it
+                self._plan(goal, sends=0)
         except Exception as exc:  # never die on a message
             self.diag.problem('internal_error', f'joint_states handling failed: {exc!r}',
                               'ERROR')
@@ -300,7 +325,51 @@ class PlannerNode(Node):
                               f'yet; planned from the first one (refused after {STATE_WAIT:g} '
                               's without)', goal_x=target[0], goal_y=target[1])
             return
+        self.goals += 1
+        if self.hold_client is not None and self.hold_client.service_is_ready():
+            # Hold time at the current state first; plan from that state once it is here.
+            self.hold_request = self.goals
+            future = self.hold_client.call_async(SetBool.Request(data=True))
+            future.add_done_callback(
+                lambda f, goal=target, n=self.goals: self._on_held(f, goal, n))
+            return
         self._plan(target, sends=0)
+
+    def _on_held(self, future, goal: tuple[float, float], n: int) -> None:
+        """The simulator holds its time at the state its reply names: plan ``goal`` from
+        exactly that state (now, or when it arrives)."""
+        try:
+            reply = future.result()
+            held = parse_answer_tag(reply.message) if reply is not None else None
+            if n != self.hold_request:  # a newer goal came meanwhile: it plans instead
+                self.holding = self.holding or held is not None
+                return
+            if held is None:
+                self.diag.problem('hold_failed', f'the simulator did not hold its time '
+                                  f'({reply!r}): goal planned from the latest state')
+                self._plan(goal, sends=0)
+                return
+            self.holding = True
+            if self.t_ns == held:
+                self._plan(goal, sends=0)
+            else:  # its state is still on the way to us
+                self.awaiting = (goal, held, time.monotonic() + STATE_WAIT)
+        except Exception as exc:  # never die on a reply
+            self.diag.problem('internal_error', f'hold reply handling failed: {exc!r}',
+                              'ERROR')
+
+    def _release(self) -> None:
+        """Let the simulator's time move on again (if we hold it)."""
+        if self.holding and self.hold_client is not None:
+            self.holding = False
+            self.hold_client.call_async(SetBool.Request(data=False))
+
+    def _release_if_idle(self) -> None:
+        """Release the hold once nothing of a goal is in flight any more (planned, sent
+        and confirmed or refused, or given up)."""
+        if self.holding and self.pending is None and self.sent is None \
+                and self.awaiting is None and self.hold_request == self.goals:
+            self._release()
 
     def _plan(self, goal: tuple[float, float], sends: int,
               start: tuple[np.ndarray, int] | None = None) -> None:
@@ -333,6 +402,7 @@ class PlannerNode(Node):
         if sent is None or values.get('stamp_ns') != str(sent['stamp']):
             return
         self.sent = None
+        self._release_if_idle()  # confirmed or refused: time may move on
         level = status.level if isinstance(status.level, int) else status.level[0]
         if level == 0:
             self.active = (sent['stamp'], sent['goal'])
@@ -392,6 +462,9 @@ class PlannerNode(Node):
                               f'sends, {CONFIRM_WAIT:g} s apart', goal_x=goal[0], goal_y=goal[1])
             return
         self.sent = None
+        # A controller that does not confirm (not arm_sim's) must not keep time held:
+        # the goal is sent again, planned from the latest state, with time moving.
+        self._release()
         self.get_logger().info(f"no controller confirmed the trajectory to {sent['goal']} in "
                                f'{CONFIRM_WAIT:g} s: planning it again from the latest state '
                                f"(send {sent['sends'] + 1} of {SENDS})")
@@ -401,6 +474,13 @@ class PlannerNode(Node):
         """Publish the pending plan once a controller is matched: a trajectory published
         before the controller's subscription matches is lost (volatile QoS)."""
         self._confirm_sent()
+        if self.awaiting is not None and time.monotonic() > self.awaiting[2]:
+            goal, stamp_ns, _ = self.awaiting
+            self.awaiting = None
+            self.diag.problem('goal_before_state', f'goal_pose refused: the held state at '
+                              f't={stamp_ns * 1e-9:.3f} s did not reach the planner in '
+                              f'{STATE_WAIT:g} s', goal_x=goal[0], goal_y=goal[1])
+        self._release_if_idle()
         if self.held_goal is not None and time.monotonic() > self.held_goal[1]:
             goal, self.held_goal = self.held_goal[0], None
             self.diag.problem('goal_before_state', 'goal_pose refused: no joint_states received '
