@@ -55,7 +55,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from arm_bag.analysis import analyze
     from arm_bag.plot import plot_report
     from arm_sim.client import SuiteError
-    from arm_sim.demo import Demo, summary_table
+    from arm_sim.demo import Demo, summary_table, timing_line
 
     domain = _domain(args)
     out = Path(args.out) if args.out else Path('runs') / time.strftime('demo-%Y%m%d-%H%M%S')
@@ -64,7 +64,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     started = time.monotonic()
     print(f'arm-sim demo: regulation and straight-line tracking on the simulated 2-R arm '
           f'(output in {out}/)')
-    demo = Demo(out, domain, fast=args.fast, slow=args.slow, foxglove=args.foxglove)
+    demo = Demo(out, domain, fast=args.fast, slow=args.slow, foxglove=args.foxglove,
+                timing_mode=args.timing_mode)
     try:
         bag = demo.run()
     except SuiteError as exc:
@@ -78,6 +79,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     print('\nthe lecture\'s questions, answered (full metrics: arm-sim analyze):')
     print(summary_table(demo.results, doc['segments'], doc['effort_limits']))
     picture = plot_report(report, out / 'report.png')
+    print(timing_line(args.timing_mode, demo.timing))
     print(f'\ndone in {time.monotonic() - started:.0f} s.')
     print(f'  bag:     {bag}/  (rosbag2, MCAP: {next(bag.glob("*.mcap")).name})')
     print(f'  picture: {picture}')
@@ -164,6 +166,10 @@ def cmd_bringup(args: argparse.Namespace) -> int:
         codes = {p.name: p.stop(signal.SIGINT) for p in order}
         codes = {n: codes[n] for n in nodes if n in codes}
     print('stopped: ' + ', '.join(f'{n} ({c})' for n, c in codes.items()))
+    for p in procs:  # how simulated time was paced (the simulator logs it at shutdown)
+        for line in p.output().splitlines():
+            if 'timing: ' in line:
+                print(line[line.index('timing: '):])
     if args.record:
         print(f'bag: {out / "bag"}  (arm-sim analyze {out / "bag"})')
     return 0
@@ -296,11 +302,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser(
         'demo', help='run the lecture tasks, record them and print the analysis',
-        description='Start simulator (lockstep), controller, planner, recorder and visualizer '
-        '(markers, robot_description); move the '
+        description='Start simulator (lockstep, or real_time with --timing-mode), '
+        'controller, planner, recorder and visualizer (markers, robot_description); move the '
         'tip from Ps to Pf (regulation), then along the straight line Pf -> Ps slowly and '
         'fast under computed torque, and fast under plain PD. Prints how much torque, how '
-        'much deviation and how long to settle, and writes a report picture.')
+        'much deviation and how long to settle, and writes a report picture. Both timing '
+        'modes record the same joint states, bit for bit.')
     demo.add_argument('--out', default=None,
                       help='output directory (default runs/demo-<time>)')
     demo.add_argument('--fast', type=float, default=0.8,
@@ -308,6 +315,10 @@ def build_parser() -> argparse.ArgumentParser:
     foxglove_arg(demo)
     demo.add_argument('--slow', type=float, default=3.0,
                       help='duration of the slow straight line [s] (default 3)')
+    demo.add_argument('--timing-mode', default='lockstep', choices=('lockstep', 'real_time'),
+                      help='simulator timing: lockstep (default: as fast as the closed loop '
+                      'runs) or real_time (the same lockstep at wall-clock pace, to watch it; '
+                      'a slow machine lowers the real-time factor, never the results)')
     domain_arg(demo)
     demo.set_defaults(func=cmd_demo)
 
@@ -317,9 +328,11 @@ def build_parser() -> argparse.ArgumentParser:
         'robot_description) and recorder with config/arm.yaml and wait; drive it with '
         'arm-sim goal.')
     bring.add_argument('--timing-mode', default='real_time', choices=TIMING_MODES,
-                       help='simulator timing: real_time (default: wall-clock speed, for '
-                       'watching and driving by hand) or lockstep (deterministic, as fast as '
-                       'the closed loop runs)')
+                       help='simulator timing: real_time (default: lockstep at wall-clock '
+                       'pace, for watching and driving by hand), lockstep (as fast as the '
+                       'closed loop runs) or wall_clock (opt-in: periods integrated on the '
+                       "wall clock's schedule with the command held then; results depend on "
+                       'the machine). real_time and lockstep give the same results')
     bring.add_argument('--composed', action='store_true',
                        help='run simulator and controller in one process with one executor '
                        '(the composed executable): the loop never leaves the process, which '

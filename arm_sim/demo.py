@@ -1,10 +1,11 @@
 """``arm-sim demo``: the lecture's two tasks on the simulated arm, recorded and analysed.
 
-Starts simulator (lockstep), controller, planner, recorder and visualizer (markers and
-robot_description, recorded too) as separate processes with ``config/arm.yaml``, then
-drives a fixed scenario. Every goal takes effect at an exact simulated time: the simulator
-pauses there (``pause_at``), the goal is planned from the paused state and the controller
-accepts it before time moves on, so two runs record the same joint states.
+Starts simulator (lockstep, or real_time: lockstep at wall-clock pace), controller,
+planner, recorder and visualizer (markers and robot_description, recorded too) as separate
+processes with ``config/arm.yaml``, then drives a fixed scenario. Every goal takes effect
+at an exact simulated time: the simulator pauses there (``pause_at``), the goal is planned
+from the paused state and the controller accepts it before time moves on, so two runs, in
+either timing mode, record the same joint states.
 """
 
 from __future__ import annotations
@@ -83,8 +84,11 @@ class Demo:
     """Runs the scenario; ``out`` gets ``bag/``, ``report.png`` and ``logs/``."""
 
     def __init__(self, out: Path, domain_id: int, fast: float, slow: float,
-                 echo=print, foxglove: int | None = None) -> None:
+                 echo=print, foxglove: int | None = None,
+                 timing_mode: str = 'lockstep') -> None:
         self.out = out
+        self.timing_mode = timing_mode
+        self.timing: dict[str, str] = {}  # the simulator's last summary (its counters)
         self.foxglove = foxglove  # port of the live node (Foxglove WebSocket); None: none
         self.domain = domain_id
         self.echo = echo
@@ -118,12 +122,13 @@ class Demo:
             self._start('live', port=self.foxglove)
         self._start('recorder', output=str(bag))
         self._start('visualizer')
-        self._start('simulator', timing_mode='lockstep', pause_at=0.05)
+        self._start('simulator', timing_mode=self.timing_mode, pause_at=0.05)
         self._start('planner')
         client = SuiteClient(self.domain)
         codes = {}
         try:
             self._drive(client)
+            self.timing = client.latest_values('simulator')
             # The simulation stands paused at its end: stop everything but the recorder,
             # then let the recorder take what is still on its way to it.
             codes = {p.name: p.stop(signal.SIGINT) for p in self.procs
@@ -298,6 +303,22 @@ def suite_warnings(c: SuiteClient) -> list[str]:
         total = max(c.count(node, kind), reports)  # occurrences (some reported late or held)
         lines.append(f'{node} reported {kind} {total} time(s); last: {message}')
     return lines
+
+
+def timing_line(mode: str, values: dict[str, str]) -> str:
+    """What the simulator's counters say about pacing: for real_time, the real-time factor
+    achieved while running and how often (and how long) time waited for the controller."""
+    if mode != 'real_time':
+        return (f'timing: lockstep, as fast as the loop runs '
+                f"({values.get('control_periods', '?')} control periods)")
+    factor = values.get('paced_real_time_factor', '?')
+    waits = values.get('real_time_waits', '?')
+    waited = values.get('real_time_waited_wall', '?')
+    slips = values.get('real_time_slips', '?')
+    return (f'timing: real_time achieved {factor}x real time while running; simulated time '
+            f'waited for the controller {waits} time(s), {waited} s in all, and restarted '
+            f'its pacing {slips} time(s) after falling behind; the results are those of '
+            'lockstep')
 
 
 def default_domain() -> int:

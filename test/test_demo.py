@@ -24,9 +24,9 @@ from arm_sim.launcher import node_env
 BUSY = 'while True: pass'
 
 
-def demo_command(out: Path, domain: int) -> list[str]:
+def demo_command(out: Path, domain: int, mode: str = 'lockstep') -> list[str]:
     return [sys.executable, '-m', 'arm_sim.cli', 'demo', '--out', str(out), '--domain-id',
-            str(domain)]
+            str(domain), '--timing-mode', mode]
 
 
 def run_demo(out: Path, domain: int) -> subprocess.CompletedProcess:
@@ -52,12 +52,14 @@ def children(pid: int, name: str) -> list[int]:
     return found
 
 
-def run_demo_with_stalled_controller(ros, out: Path, domain: int, at: float = 3.0):
+def run_demo_with_stalled_controller(ros, out: Path, domain: int, at: float = 3.0,
+                                     stall: float = 2.0, mode: str = 'lockstep'):
     """The demo, with its controller SIGSTOPped once simulated time passes ``at`` s (in
-    the slow line) until the simulator has reported waiting 2 s for it, then SIGCONT."""
+    the slow line) until the simulator has reported waiting ``stall`` s for it, then
+    SIGCONT."""
     states = ros.collect(JointState, 'joint_states', qos=1000)
     diags = ros.collect(DiagnosticArray, '/diagnostics')
-    proc = subprocess.Popen(demo_command(out, domain), stdout=subprocess.PIPE,
+    proc = subprocess.Popen(demo_command(out, domain, mode), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=node_env(domain))
     try:
         ros.wait_for(lambda: states and stamp_of(states[-1]) >= at, timeout=120,
@@ -69,8 +71,8 @@ def run_demo_with_stalled_controller(ros, out: Path, domain: int, at: float = 3.
             def waited() -> float:
                 return max((float(values(s)['waited_wall']) for s in
                             statuses(diags, '/simulator', 'waiting_for_command')), default=0.0)
-            ros.wait_for(lambda: waited() >= 2.0, timeout=30,
-                         what='the simulator to report waiting 2 s for the controller')
+            ros.wait_for(lambda: waited() >= stall, timeout=30,
+                         what=f'the simulator to report waiting {stall} s for the controller')
             t_stall = stamp_of(states[-1])
         finally:
             os.kill(controller, signal.SIGCONT)
@@ -85,8 +87,9 @@ def run_demo_with_stalled_controller(ros, out: Path, domain: int, at: float = 3.
 
 @pytest.fixture(scope='module')
 def demo_runs(tmp_path_factory, ros_session):
-    """The demo three times: alone, with two busy loops loading both cores, and with the
-    controller stalled for about 2 s in the middle of a task."""
+    """The demo four times: alone, with two busy loops loading both cores, with the
+    controller stalled for about 2 s in the middle of a task, and in real_time with two busy
+    loops and the controller stalled for 1.5 s."""
     from conftest import DOMAIN_ID
     base = tmp_path_factory.mktemp('demo')
     runs = {'quiet': (base / 'quiet', run_demo(base / 'quiet', DOMAIN_ID))}
@@ -100,6 +103,15 @@ def demo_runs(tmp_path_factory, ros_session):
     res, t_stall = run_demo_with_stalled_controller(ros_session, base / 'stalled', DOMAIN_ID)
     runs['stalled'] = (base / 'stalled', res)
     runs['stalled_at'] = t_stall
+    burners = [subprocess.Popen([sys.executable, '-c', BUSY]) for _ in range(2)]
+    try:
+        res, _ = run_demo_with_stalled_controller(ros_session, base / 'real_time', DOMAIN_ID,
+                                                  stall=1.5, mode='real_time')
+    finally:
+        for b in burners:
+            b.kill()
+            b.wait()
+    runs['real_time'] = (base / 'real_time', res)
     for label, (out, res) in ((k, v) for k, v in runs.items() if k != 'stalled_at'):
         assert res.returncode == 0, (f'{label}: {out}: {res.stdout[-2000:]}\n'
                                      f'{res.stderr[-2000:]}')
@@ -143,7 +155,7 @@ def recorded_states(out: Path) -> tuple[np.ndarray, ...]:
     return stamps, js.position[first], js.velocity[first], js.effort[first]
 
 
-@pytest.mark.parametrize('label', ['quiet', 'loaded', 'stalled'])
+@pytest.mark.parametrize('label', ['quiet', 'loaded', 'stalled', 'real_time'])
 def test_the_demo_bag_holds_every_state_from_the_first_to_the_last(demo_runs, label):
     out = demo_runs[label][0]
     stamps = recorded_states(out)[0]
@@ -155,7 +167,7 @@ def test_the_demo_bag_holds_every_state_from_the_first_to_the_last(demo_runs, la
             '/arm_controller/reference', '/planner/path'} <= set(bag.topics)
 
 
-@pytest.mark.parametrize('label', ['loaded', 'stalled'])
+@pytest.mark.parametrize('label', ['loaded', 'stalled', 'real_time'])
 def test_demo_records_bit_identical_joint_states_under_load_and_a_stalled_controller(
         demo_runs, label):
     quiet = recorded_states(demo_runs['quiet'][0])
@@ -164,6 +176,17 @@ def test_demo_records_bit_identical_joint_states_under_load_and_a_stalled_contro
     assert len(other[0]) == len(quiet[0]), 'same number of states'
     for name, x, y in zip(('stamps', 'positions', 'velocities', 'efforts'), quiet, other):
         assert np.array_equal(x, y), f'{label}: {name} differ from the undisturbed run'
+
+
+def test_real_time_demo_reports_its_pace_and_the_wait_for_the_stalled_controller(demo_runs):
+    """Real time under two busy loops with the controller SIGSTOPped 1.5 s: the wait is
+    reported (on /diagnostics, so in the demo's warnings) and so is the pace reached,
+    while the states equal lockstep's (test above)."""
+    _, res = demo_runs['real_time']
+    assert 'simulator reported waiting_for_command' in res.stdout, res.stdout[-3000:]
+    line = next(x for x in res.stdout.splitlines() if x.startswith('timing: real_time'))
+    factor = float(line.split('achieved ')[1].split('x')[0])
+    assert 0.0 < factor <= 1.0 + 1e-3, f'never faster than the wall clock: {line}'
 
 
 def test_a_stalled_controller_is_reported_in_the_demo_output(demo_runs):
