@@ -116,21 +116,37 @@ def _loop(context: LaunchContext) -> list[Node]:
     """The simulator and the controller: two processes, or one (``composed``), with
     ``timing_mode`` overriding params_file only when non-empty.
 
+    A non-empty ``timing_mode`` reaches the node ``simulator`` as a node-scoped command-line
+    rule (:func:`timing_mode_arguments`), in either process: a ``parameters`` dict would not
+    do for ``composed``, whose Node has no single name, so launch_ros writes the dict as a
+    ``/**`` section, which a params file's ``/**/simulator`` section (config/arm.yaml's sets
+    ``timing_mode``) beats.
+
     The simulator is the clock source and must run on the wall clock, so its
     ``use_sim_time`` is pinned to false even if params_file sets it for all nodes (composed:
     params_file's per-node sections decide, as config/arm.yaml does).
     """
-    mode = timing_mode.perform(context).strip()
-    modes = [{'timing_mode': mode}] if mode else []
+    modes = timing_mode_arguments(timing_mode.perform(context))
     if composed.perform(context) == 'true':
         return [Node(package=PACKAGE, executable='composed', namespace=namespace,
-                     parameters=[params_file, *modes], remappings=CLOCK_REMAP,
+                     parameters=[params_file], ros_arguments=modes, remappings=CLOCK_REMAP,
                      output='screen')]
     return [Node(package=PACKAGE, executable='simulator', name='simulator',
-                 namespace=namespace, parameters=[params_file, {'use_sim_time': False},
-                                                  *modes],
-                 remappings=CLOCK_REMAP, output='screen'),
+                 namespace=namespace, parameters=[params_file, {'use_sim_time': False}],
+                 ros_arguments=modes, remappings=CLOCK_REMAP, output='screen'),
             _sim_time_node('controller')]
+
+
+def timing_mode_arguments(mode: str) -> list[str]:
+    """The ROS arguments that set the node ``simulator``'s ``timing_mode`` to ``mode``, or
+    none for an empty ``mode`` (params_file decides).
+
+    ``-p simulator:timing_mode:=<mode>`` applies to the node named ``simulator`` in any
+    namespace, and rcl's ``-p`` rules win over every params file, whatever their order and
+    however specific their sections; it leaves the controller of the composed process alone.
+    """
+    mode = mode.strip()
+    return ['-p', f'simulator:timing_mode:={mode}'] if mode else []
 
 
 def _visualization(context: LaunchContext) -> list[Node]:

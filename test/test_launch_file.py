@@ -1,7 +1,8 @@
 """launch/arm.launch.py, checked without ROS's launch packages (PyPI has none): it compiles,
 declares its arguments, and, run against stand-ins for ``launch`` / ``launch_ros`` that
 record what they are given, starts robot_state_publisher with the generated URDF and RViz
-with the shipped config only when asked to."""
+with the shipped config only when asked to, and hands a non-empty ``timing_mode`` to the
+simulator as a rule that beats params_file (test_launch_timing.py runs it for real)."""
 
 from __future__ import annotations
 
@@ -55,8 +56,9 @@ def stand_ins() -> dict[str, types.ModuleType]:
     return mods
 
 
-@pytest.fixture
-def launch_module(monkeypatch):
+def load_launch_module(monkeypatch) -> types.ModuleType:
+    """launch/arm.launch.py run against the stand-ins (in ``sys.modules`` while the test
+    runs)."""
     for name, mod in stand_ins().items():
         monkeypatch.setitem(sys.modules, name, mod)
     spec = importlib.util.spec_from_file_location('arm_launch', LAUNCH_FILE)
@@ -64,6 +66,11 @@ def launch_module(monkeypatch):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+@pytest.fixture
+def launch_module(monkeypatch):
+    return load_launch_module(monkeypatch)
 
 
 def declared(module) -> dict[str, dict]:
@@ -78,6 +85,17 @@ def visualization_nodes(module, **given: str) -> list:
     opaque = [a for a in module.generate_launch_description().args[0]
               if type(a).__name__ == 'OpaqueFunction'
               and a.kwargs['function'].__name__ == '_visualization']
+    assert len(opaque) == 1
+    return opaque[0].kwargs['function'](context)
+
+
+def loop_nodes(module, **given: str) -> list:
+    """The nodes ``_loop`` starts (the simulator's process first) for launch arguments
+    ``given`` (default: two processes, timing_mode empty)."""
+    context = {'composed': 'false', 'timing_mode': '', 'params_file': str(CONFIG), **given}
+    opaque = [a for a in module.generate_launch_description().args[0]
+              if type(a).__name__ == 'OpaqueFunction'
+              and a.kwargs['function'].__name__ == '_loop']
     assert len(opaque) == 1
     return opaque[0].kwargs['function'](context)
 
@@ -121,3 +139,43 @@ def test_rviz_starts_with_the_shipped_config_and_the_robot_state_publisher(launc
     assert Path(config).is_file()
     assert rviz.kwargs['namespace'] is launch_module.namespace
     assert ('/tf', 'tf') in rviz.kwargs['remappings']
+
+
+def timing_in_dicts(node) -> list:
+    """The ``timing_mode`` entries of the node's parameter dicts (launch_ros writes them as
+    a params file that a params file's ``/**/simulator`` section may beat)."""
+    return [p['timing_mode'] for p in node.kwargs.get('parameters', [])
+            if isinstance(p, dict) and 'timing_mode' in p]
+
+
+@pytest.mark.parametrize('composed', ['true', 'false'])
+@pytest.mark.parametrize('mode', ['lockstep', 'real_time', ' lockstep '])
+def test_timing_mode_reaches_the_simulator_as_a_node_scoped_rule(launch_module, composed,
+                                                                  mode):
+    nodes = loop_nodes(launch_module, composed=composed, timing_mode=mode)
+    sim = nodes[0]
+    assert sim.kwargs['executable'] == ('composed' if composed == 'true' else 'simulator')
+    # '-p node:param:=value' beats every params file; a '/**' dict would lose to
+    # config/arm.yaml's '/**/simulator' section.
+    assert sim.kwargs['ros_arguments'] == ['-p', f'simulator:timing_mode:={mode.strip()}']
+    assert sim.kwargs['parameters'][0] is launch_module.params_file
+    assert not timing_in_dicts(sim)
+    for other in nodes[1:]:  # the controller of two processes
+        assert other.kwargs['executable'] == 'controller'
+        assert not other.kwargs.get('ros_arguments') and not timing_in_dicts(other)
+    assert len(nodes) == (1 if composed == 'true' else 2)
+
+
+@pytest.mark.parametrize('composed', ['true', 'false'])
+@pytest.mark.parametrize('mode', ['', '  '])
+def test_empty_timing_mode_leaves_params_file_to_decide(launch_module, composed, mode):
+    for node in loop_nodes(launch_module, composed=composed, timing_mode=mode):
+        assert not node.kwargs.get('ros_arguments'), 'no rule overrides params_file'
+        assert not timing_in_dicts(node)
+        assert node.kwargs['parameters'][0] is launch_module.params_file
+
+
+def test_timing_mode_choices_are_the_simulators_modes(launch_module):
+    from arm_dynamics.timing import TIMING_MODES
+
+    assert declared(launch_module)['timing_mode']['choices'] == ['', *TIMING_MODES]
