@@ -436,7 +436,7 @@ class SimulatorNode(Node):
         elif k.holding():
             level, message = 'OK', 'holding the initial state until the first command'
         elif not k.started:
-            level, message = 'WARN', 'waiting for the first command (lockstep)'
+            level, message = 'WARN', f'waiting for the first command ({self.mode})'
         elif self.timed_out:
             level, message = 'WARN', 'command timeout: applying zero torque'
         elif k.overdue_s(core.time_ns, time.monotonic_ns()) is not None:
