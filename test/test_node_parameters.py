@@ -24,7 +24,7 @@ CONFIG = config_file()
 # node: (parameter, a well-formed but refused value, the reason's words)
 REFUSED = {
     'simulator': ('timing_mode', 'foo',
-                  "timing_mode must be one of real_time, lockstep; got 'foo'"),
+                  "timing_mode must be one of real_time, lockstep, wall_clock; got 'foo'"),
     'controller': ('law', 'foo', "law must be one of pd, pd_gravity, computed_torque, pid"),
     'planner': ('max_speed', '0', 'max_speed must be > 0 m/s, got 0.0'),
     'recorder': ('chunk_size', '1', 'chunk_size must be >= 64 bytes, got 1'),

@@ -54,6 +54,8 @@ def suite(launch, ros, mode: str, sim: dict | None = None):
     trajs = ros.collect(JointTrajectory, 'arm_controller/joint_trajectory')
     goals = ros.publisher(PoseStamped, 'goal_pose')
     ros.wait_for(lambda: states and stamp(states[-1]) > 0.1, timeout=30, what='the loop')
+    # Every reference from here on reaches us: the subscription has matched.
+    ros.wait_for(lambda: refs, timeout=30, what="the controller's references")
     ros.wait_for(lambda: any(s.message.startswith(('ready', 'last'))
                              for s in statuses(diags, '/planner', 'summary')),
                  what='the planner ready')
