@@ -22,9 +22,11 @@ Timing modes (:data:`TIMING_MODES`):
 * ``real_time`` -- lockstep at wall-clock pace: every rule of lockstep, and in addition a
   period is integrated no earlier than its end is due on the wall clock (simulated time
   never runs ahead of ``wall x real_time_factor`` from the pacing anchor). A late
-  controller makes simulated time wait (counted as ``waits``, with the wall time waited);
-  after falling more than :data:`MAX_LAG_PERIODS` periods behind the wall clock, for any
-  reason, pacing restarts from now (a ``slip``) instead of rushing to catch up. The results
+  controller makes simulated time wait (counted as ``waits``, with the wall time waited:
+  a state published before its period was due whose answer came after it); after falling
+  more than :data:`MAX_LAG_PERIODS` periods and :data:`MAX_LAG_NS` behind the wall clock,
+  for any reason, pacing restarts from now (a ``slip``) instead of rushing to catch up; a
+  smaller lag is caught up at the loop's own speed. The results
   are those of lockstep, bit for bit; only the achieved real-time factor depends on the
   machine.
 * ``wall_clock`` -- explicit opt-in, the pre-0.4 ``real_time``: each period is integrated
@@ -58,7 +60,8 @@ REMOVED_MODES = {
 HEARTBEAT_NS = 200_000_000  # wall: how often a state nobody answered is re-sent
 MAX_CATCH_UP = 20  # wall_clock: periods behind before it counts as an overrun
 GRACE_PERIODS = 1  # wall_clock: how long past its due time a period waits for its answer
-MAX_LAG_PERIODS = 5  # real_time: periods behind the wall clock before pacing restarts
+MAX_LAG_PERIODS = 5  # real_time: periods behind the wall clock before pacing restarts ...
+MAX_LAG_NS = 100_000_000  # ... and at least this much wall time (a hiccup is caught up)
 
 #: Lockstep protocol: a command may name the joint state it answers in
 #: ``layout.dim[0].label`` as ``joint_states@<sec>.<nanosec>`` (arm_sim's controller does).
@@ -275,10 +278,14 @@ class Timekeeper:
         lag = -ahead  # [wall ns] this period's end is overdue by
         answered = self.answered_wall if self.answered_wall is not None else wall_ns
         due = wall_ns - lag
-        if answered > due:  # the controller's answer came after the period was due
+        published = self.waiting_since if self.waiting_since is not None else due
+        if published <= due < answered:
+            # The state went out in time and its answer came after the period was due:
+            # the controller made time wait (a state published late, while catching up a
+            # backlog, is not the controller's wait).
             self.waits += 1
             self.waited_s += (answered - due) * 1e-9
-        if lag > MAX_LAG_PERIODS * self.period_ns / self.real_time_factor:
+        if lag > max(MAX_LAG_PERIODS * self.period_ns / self.real_time_factor, MAX_LAG_NS):
             # Far behind (a stalled controller, a loaded machine): go on at the same pace
             # from here rather than rushing through the lost time.
             self.slips += 1

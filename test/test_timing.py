@@ -140,6 +140,22 @@ def test_real_time_counts_a_late_answer_as_a_wait_and_catches_up_a_small_lag():
     k.on_command(2 * P, 2 * P, 46 * MS)
     assert k.may_step(2 * P, 46 * MS), 'still behind the anchor (due at 30 ms): catches up'
     assert k.slips == 0
+    assert k.waits == 1, 'a state published late (catching up) is not a wait for the controller'
+
+
+def test_real_time_catches_up_a_hiccup_shorter_than_the_lag_limit_at_1_khz():
+    k = Timekeeper(mode='real_time', period_ns=MS)
+    k.on_published(0, 0, True)
+    k.on_command(0, 0, 0)
+    k.may_step(0, 0)  # anchor
+    sim, wall = 0, 50 * MS  # a 50 ms hiccup: 49 periods behind, under MAX_LAG_NS
+    for _ in range(49):
+        k.on_command(sim, sim, wall)
+        assert k.may_step(sim, wall), 'overdue: stepped at once'
+        sim += MS
+        k.on_published(sim, wall, True)
+    assert k.slips == 0 and k.waits == 0, 'caught up, not given up'
+    assert sim == 49 * MS
 
 
 def test_real_time_restarts_pacing_after_a_long_stall_instead_of_rushing():
