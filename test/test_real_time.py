@@ -217,3 +217,64 @@ def _duration(t: float):
 
     sec = int(t)
     return Duration(sec=sec, nanosec=int(round((t - sec) * 1e9)))
+
+
+def bringup_run(ros, tmp_path, mode: str) -> dict[int, tuple]:
+    """``arm-sim bringup --timing-mode MODE`` with a goal at exactly t = 3 s (the
+    simulator pauses there, the planner plans from that state, then time runs to 6 s);
+    returns the joint states the test received, by stamp [ns]: (position, velocity,
+    effort)."""
+    import signal
+
+    from conftest import DOMAIN_ID
+
+    from arm_sim.launcher import node_env
+    states = ros.collect(JointState, 'joint_states', qos=10000)
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    proc = subprocess.Popen([sys.executable, '-m', 'arm_sim.cli', 'bringup', '--no-record',
+                             '--out', str(tmp_path / mode), '--domain-id', str(DOMAIN_ID),
+                             '--timing-mode', mode], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=node_env(DOMAIN_ID))
+    try:
+        # The controller starts only after the recorder (none here: the simulator's first
+        # state) is seen: pause_at reaches the simulator long before t = 3 s.
+        ros.wait_for(lambda: states, timeout=60, what='the first state')
+        assert ros.set_params('/simulator', pause_at=3.0)[0].successful
+        assert stamp(states[-1]) < 3.0, 'the pause was set in time'
+        ros.wait_for(lambda: stamp(states[-1]) >= 3.0 - 1e-9, timeout=60, what='t = 3 s')
+        ros.wait_for(lambda: any(s.message.startswith(('ready', 'last'))
+                                 for s in statuses(diags, '/planner', 'summary')),
+                     what='the planner ready')
+        goals = ros.publisher(PoseStamped, 'goal_pose')
+        ros.wait_for(lambda: goals.get_subscription_count() > 0, what='the planner')
+        before = accepted(diags)
+        goals.publish(goal(*PF))
+        ros.wait_for(lambda: accepted(diags) > before, timeout=30, what='the plan accepted')
+        assert ros.set_params('/simulator', pause_at=6.0)[0].successful
+        ros.wait_for(lambda: stamp(states[-1]) >= 6.0 - 1e-9, timeout=60, what='t = 6 s')
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=30)
+        ros.reset()
+    assert proc.returncode == 0, out
+    assert f'timing: {mode}' in out, 'bringup prints how time was paced'
+    return {ns(m): (tuple(m.position), tuple(m.velocity), tuple(m.effort)) for m in states}
+
+
+def test_bringup_in_real_time_records_lockstep_states_bit_for_bit(ros, tmp_path):
+    """The same scenario through ``arm-sim bringup`` in lockstep and in real time (with
+    two busy loops): every joint state from 1 s to 6 s is the same, bit for bit."""
+    lockstep = bringup_run(ros, tmp_path, 'lockstep')
+    burners = [subprocess.Popen([sys.executable, '-c', BUSY]) for _ in range(2)]
+    try:
+        real_time = bringup_run(ros, tmp_path, 'real_time')
+    finally:
+        for b in burners:
+            b.kill()
+            b.wait()
+    window = range(1_000_000_000, 6_000_000_001, 10_000_000)
+    missing = [t for t in window if t not in lockstep or t not in real_time]
+    assert not missing, f'{len(missing)} states not received, first at {missing[0]} ns'
+    differ = [t for t in window if lockstep[t] != real_time[t]]
+    assert not differ, f'{len(differ)} states differ, first at t = {differ[0] * 1e-9:.2f} s'
+    assert lockstep[6_000_000_000][0] != lockstep[3_000_000_000][0], 'the goal moved the arm'
