@@ -26,8 +26,10 @@ Per segment:
   segment (a tip beyond an end is measured to that end, not to the infinite line) and how
   far it went along the line past the end and before the start (overshoot).
 * torque: peak and RMS applied torque (JointState effort), saturated fraction
-  (|effort| >= effort_limit - 1e-9), energy delivered (trapezoid integral of tau . qd over
-  the actuated joints: a geared link's output beside its ``_motor`` entry is not counted).
+  (|effort| >= effort_limit - 1e-9), energy delivered (the exact work of the held torques,
+  sum of tau_k . (q_k - q_(k-1)) over the actuated joints, each effort sample being the
+  torque held over the period that ends there: a geared link's output beside its
+  ``_motor`` entry is not counted).
 
 Times are header stamps (simulated time) relative to the segment's first joint state.
 
@@ -219,7 +221,7 @@ def analyze_data(bag: BagData) -> Report:
         warnings.append(f'{len(bag.trajectories) - len(trajs)} trajectories with other '
                         f'joint names or no points ignored')
     run = {'duration': float(t[-1]), 'samples': len(js)}
-    run.update(_torque(t, js.effort, js.velocity, limits, slice(None), js.names))
+    run.update(_torque(js.effort, js.position, limits, slice(None), js.names))
     segments: list[Segment] = []
     if not trajs:
         warnings.append('no joint_trajectory messages: the whole run is one segment '
@@ -313,18 +315,18 @@ def _finite_rows(*arrays: np.ndarray) -> np.ndarray:
     return ok
 
 
-def _torque(t, effort, velocity, limits, sl, names) -> dict:
+def _torque(effort, position, limits, sl, names) -> dict:
+    """Torque figures of the states ``sl``; the energy is the work of the torques the
+    segment's states were answered with: the periods starting at its states, so the one
+    ending at the next segment's first state too (segments add up to the run)."""
     stats = metrics.torque_stats(effort[sl], limits)
     driven = actuated(names)
+    held = slice(sl.start, None if sl.stop is None else sl.stop + 1)
     if driven.all():  # no copies: the same values either way
-        e, v = effort[sl], velocity[sl]
+        e, q = effort[held], position[held]
     else:
-        e, v = effort[sl][:, driven], velocity[sl][:, driven]
-    ok = _finite_rows(e, v)
-    if ok.all():
-        energy = metrics.energy_delivered(t[sl], e, v)
-    else:
-        energy = metrics.energy_delivered(t[sl][ok], e[ok], v[ok])
+        e, q = effort[held][:, driven], position[held][:, driven]
+    energy = metrics.energy_delivered(e, q)
     return {'torque_peak': _list(stats['peak']), 'torque_rms': _list(stats['rms']),
             'saturated_fraction': _list(stats['saturated_fraction']), 'energy': energy}
 
@@ -351,7 +353,7 @@ def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
     ts = t[sl]
     seg = Segment(index=k, mode=None, start=float(ts[0]), duration=float(ts[-1] - ts[0]),
                   samples=len(ts))
-    seg.__dict__.update(_torque(t, js.effort, js.velocity, limits, sl, js.names))
+    seg.__dict__.update(_torque(js.effort, js.position, limits, sl, js.names))
     seg.series = {'t': ts - ts[0], 'q': q, 'effort': js.effort[sl]}
     set_point = None
     points = None

@@ -412,7 +412,7 @@ def segment_metrics(t: np.ndarray, q: np.ndarray, qd: np.ndarray, effort: np.nda
     stats = metrics.torque_stats(effort, limits)
     out.update(torque_peak=stats['peak'], torque_rms=stats['rms'],
                saturated_fraction=stats['saturated_fraction'],
-               energy=metrics.energy_delivered(t, effort, qd))
+               energy=metrics.energy_delivered(effort, q))
     return out
 
 

@@ -19,7 +19,8 @@ from sensor_msgs.msg import JointState
 from arm_bag.analysis import analyze
 from arm_bag.reader import read_bag
 from arm_sim.client import stamp_of
-from arm_sim.launcher import node_env
+from arm_sim.demo import start_pose
+from arm_sim.launcher import config_file, node_env
 
 BUSY = 'while True: pass'
 
@@ -279,3 +280,17 @@ def check_bag_markers(out: Path) -> int:
 def test_the_demo_bag_holds_markers_of_the_recorded_states_and_the_robot_description(
         demo_runs, label):
     assert check_bag_markers(demo_runs[label][0]) >= 20
+
+
+def test_demo_energy_is_the_change_in_mechanical_energy_to_a_nanojoule(demo_runs):
+    """config/arm.yaml has no damping: the work of the held torques over the run equals
+    the change of kinetic plus potential energy (the integrator's error only), and the
+    segments' energies add up to the run's (each period's work counted once)."""
+    out, _ = demo_runs['quiet']
+    report = analyze(out / 'bag').to_dict()
+    stamps, q, qd, _ = recorded_states(out)
+    arm = start_pose(config_file())[0]
+    change = sum(arm.energy(q[-1], qd[-1])) - sum(arm.energy(q[0], qd[0]))
+    assert abs(report['run']['energy'] - change) < 1e-9
+    assert sum(s['energy'] for s in report['segments']) == pytest.approx(
+        report['run']['energy'], abs=1e-9)
