@@ -152,6 +152,7 @@ class ControllerNode(Node):
         self.resent = 0
         self.linked = False  # a state after one we answered came: the simulator hears us
         self.early: tuple[JointTrajectory, float] | None = None  # before any state (wall)
+        self._orders: dict[tuple[str, ...], list[int]] = {}  # joint order per name list
         self.active_msg: JointTrajectory | None = None  # the accepted trajectory, if any
         self.stale = False
         self.saturations = 0
@@ -182,7 +183,13 @@ class ControllerNode(Node):
     # ------------------------------------------------------------------ input
     def _on_state(self, msg: JointState) -> None:
         try:
-            order = [list(msg.name).index(j) for j in self.core.joint_names]
+            names = tuple(msg.name)
+            order = self._orders.get(names)
+            if order is None:  # once per name list: the same one every period
+                order = [names.index(j) for j in self.core.joint_names]
+                if len(self._orders) >= 8:  # name lists that keep changing: keep it bounded
+                    self._orders.clear()
+                self._orders[names] = order
             q = np.array([msg.position[i] for i in order], dtype=float)
             qd = (np.array([msg.velocity[i] for i in order], dtype=float) if msg.velocity
                   else np.zeros(len(order)))
@@ -294,7 +301,10 @@ class ControllerNode(Node):
         if stamp_ns is not None:  # lockstep: name the state this command answers
             out.layout.dim = [MultiArrayDimension(label=answer_tag(stamp_ns),
                                                   size=len(out.data), stride=len(out.data))]
-            self.answer = (stamp_ns, q, out, self.cmd_pub.get_subscription_count() > 0)
+            # Was a simulator matched when it went out? (asked of the middleware only until
+            # the simulator is known to hear us: not a call on every period's path)
+            matched = self.linked or self.cmd_pub.get_subscription_count() > 0
+            self.answer = (stamp_ns, q, out, matched)
         self.cmd_pub.publish(out)
         ref = JointState(name=list(self.core.joint_names), position=step.q_des.tolist(),
                          velocity=step.qd_des.tolist(), effort=cmd.tau.tolist())

@@ -186,6 +186,7 @@ def path_message(plan: Plan, frame: str, stamp) -> Path:
     return msg
 
 
+FIRST_STATE = 'first joint state at'  # logged once (arm-sim bringup waits on it)
 CONTROLLER_WAIT = 5.0  # s (wall): how long a plan waits for a controller to subscribe
 STATE_WAIT = 5.0  # s (wall): how long a goal waits for the first joint state
 CONFIRM_WAIT = 1.0  # s (wall): re-send a trajectory no controller confirmed after this
@@ -287,6 +288,8 @@ class PlannerNode(Node):
                     return
             if self.q is None:
                 self.diag.set('OK', 'ready: waiting for goal_pose')
+                self.get_logger().info(f'{FIRST_STATE} t={msg.header.stamp.sec}.'
+                                       f'{msg.header.stamp.nanosec:09d} s')
             self.q, self.qd = q, qd
             self.t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             if self.held_goal is not None:  # a goal waited for this first state

@@ -94,9 +94,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_bringup(args: argparse.Namespace) -> int:
     """Start the suite and keep it running until Ctrl-C."""
     from arm_bag.recorder_node import FIRST_MESSAGE
+    from arm_planner.planner_node import FIRST_STATE
     from arm_sim.launcher import NodeProcess, config_file
 
     domain = _domain(args)
+    params_file = Path(args.params_file) if args.params_file else config_file()
+    if not params_file.is_file():
+        raise CliError(f'--params-file {params_file}: no such file')
     out = Path(args.out) if args.out else Path('runs') / time.strftime('bringup-%Y%m%d-%H%M%S')
     (out / 'logs').mkdir(parents=True, exist_ok=True)
     ns = args.namespace
@@ -113,28 +117,33 @@ def cmd_bringup(args: argparse.Namespace) -> int:
 
     def start(name: str) -> None:
         # Each node resolves /clock in its own namespace (arm_common.node).
-        procs.append(NodeProcess(name, params_file=config_file(),
+        procs.append(NodeProcess(name, params_file=params_file,
                                  node_params=overrides.get(name),
                                  namespace=ns or None, domain_id=domain,
                                  log_path=out / 'logs' / f'{name}.log'))
 
     try:
+        # Recorder first, then the simulator, and the rest only once the recorder has the
+        # first state: the simulator repeats it until the first command comes, so the bag
+        # holds every state from the first on. With two processes the controller (which
+        # starts the loop) comes last, once the planner has that state too: a planner that
+        # joined later, while the simulation stood paused or held, would have none.
+        if 'live' in nodes:  # the Foxglove bridge first: it sees the suite from the start
+            start('live')
         if args.record:
-            # Recorder first, then the simulator, and the rest only once the recorder has
-            # the first state: the simulator repeats it until the first command comes, so
-            # the bag holds every state from the first on.
             start('recorder')
             _wait_log(procs[-1], 'recording to')
-            start(loop[0])
-            if loop[0] == 'simulator':
-                _wait_log(procs[0], f'{FIRST_MESSAGE} {ns or ""}/joint_states'
-                          .replace('//', '/'))
-            for name in nodes:
-                if name not in ('recorder', loop[0]):
-                    start(name)
-        else:
-            for name in nodes:
+        start(loop[0])
+        if args.record and loop[0] == 'simulator':
+            recorder = next(p for p in procs if p.name == 'recorder')
+            _wait_log(recorder, f'{FIRST_MESSAGE} {ns or ""}/joint_states'.replace('//', '/'))
+        for name in nodes:
+            if name not in ('live', 'recorder', 'controller', loop[0]):
                 start(name)
+        if 'controller' in nodes:
+            planner = next(p for p in procs if p.name == 'planner')
+            _wait_log(planner, FIRST_STATE)
+            start('controller')
         live = [p for p in procs if p.name == 'live']
         if live:
             _wait_log(live[0], 'serving ws://')
@@ -343,6 +352,9 @@ def build_parser() -> argparse.ArgumentParser:
     foxglove_arg(bring)
     bring.add_argument('--out', default=None,
                        help='output directory (default runs/bringup-<time>)')
+    bring.add_argument('--params-file', default=None, metavar='FILE',
+                       help='ROS params file for every node (default: the shipped '
+                       'config/arm.yaml); --timing-mode still decides the simulator\'s mode')
     domain_arg(bring)
     bring.set_defaults(func=cmd_bringup)
 
