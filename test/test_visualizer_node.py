@@ -168,6 +168,10 @@ def test_bad_input_is_reported_and_never_stops_the_markers(ros, launch):
     ros.wait_for(lambda: states.get_subscription_count() >= 1
                  and goals.get_subscription_count() >= 1
                  and paths.get_subscription_count() >= 1, 20, 'the visualizer to subscribe')
+    # Its immediate reports reach us only once our /diagnostics subscription has matched
+    # its publisher: wait for its periodic summary first (seen missed once under load).
+    ros.wait_for(lambda: any(s.name.startswith('visualizer') for d in diags for s in d.status),
+                 20, "the visualizer's /diagnostics")
     bad = [state(1, [0.1, 0.2], names=('joint1', 'elbow')),
            JointState(name=['joint1', 'joint2'], position=[0.1]),
            state(2, [float('nan'), 0.2]),
