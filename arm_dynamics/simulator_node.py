@@ -382,7 +382,7 @@ class SimulatorNode(Node):
             self.wait_reported = waited  # once a second of waiting: counts are of waits
             self.diag.problem('waiting_for_command', f'no command answering the state at '
                               f't={self.core.time:.3f} s for {waited:.2f} s (wall): simulated '
-                              'time stands still until one comes (lockstep)',
+                              f'time stands still until one comes ({self.mode})',
                               waited_wall=f'{waited:.3f}')
         timeout = _ns(self.params['command_timeout'])
         if self.mode == 'wall_clock' and (k.holding() or k.stopped(sim)):

@@ -187,6 +187,7 @@ def path_message(plan: Plan, frame: str, stamp) -> Path:
 
 
 FIRST_STATE = 'first joint state at'  # logged once (arm-sim bringup waits on it)
+HOLD_WAIT = 2.0  # s (wall): a hold reply later than this: plan without it
 CONTROLLER_WAIT = 5.0  # s (wall): how long a plan waits for a controller to subscribe
 STATE_WAIT = 5.0  # s (wall): how long a goal waits for the first joint state
 CONFIRM_WAIT = 1.0  # s (wall): re-send a trajectory no controller confirmed after this
@@ -235,7 +236,8 @@ class PlannerNode(Node):
         self.hold_client = (self.create_client(SetBool, p['hold_service'])
                             if p['hold_service'] else None)
         self.holding = False  # we hold the simulator's time
-        self.hold_request = 0  # the goal whose hold reply is awaited (its number)
+        # The goal whose hold reply is awaited: (goal, its number, wall deadline).
+        self.hold_wait: tuple[tuple[float, float], int, float] | None = None
         self.goals = 0
         # A goal waiting for the held state: (goal, its stamp ns, wall deadline).
         self.awaiting: tuple[tuple[float, float], int, float] | None = None
@@ -331,7 +333,7 @@ class PlannerNode(Node):
         self.goals += 1
         if self.hold_client is not None and self.hold_client.service_is_ready():
             # Hold time at the current state first; plan from that state once it is here.
-            self.hold_request = self.goals
+            self.hold_wait = (target, self.goals, time.monotonic() + HOLD_WAIT)
             future = self.hold_client.call_async(SetBool.Request(data=True))
             future.add_done_callback(
                 lambda f, goal=target, n=self.goals: self._on_held(f, goal, n))
@@ -344,9 +346,12 @@ class PlannerNode(Node):
         try:
             reply = future.result()
             held = parse_answer_tag(reply.message) if reply is not None else None
-            if n != self.hold_request:  # a newer goal came meanwhile: it plans instead
+            if self.hold_wait is None or self.hold_wait[1] != n:
+                # A newer goal came meanwhile (it plans instead), or the reply came too late
+                # (planned without it): we hold all the same, released once idle.
                 self.holding = self.holding or held is not None
                 return
+            self.hold_wait = None
             if held is None:
                 self.diag.problem('hold_failed', f'the simulator did not hold its time '
                                   f'({reply!r}): goal planned from the latest state')
@@ -371,7 +376,7 @@ class PlannerNode(Node):
         """Release the hold once nothing of a goal is in flight any more (planned, sent
         and confirmed or refused, or given up)."""
         if self.holding and self.pending is None and self.sent is None \
-                and self.awaiting is None and self.hold_request == self.goals:
+                and self.awaiting is None and self.hold_wait is None:
             self._release()
 
     def _plan(self, goal: tuple[float, float], sends: int,
@@ -483,6 +488,12 @@ class PlannerNode(Node):
             self.diag.problem('goal_before_state', f'goal_pose refused: the held state at '
                               f't={stamp_ns * 1e-9:.3f} s did not reach the planner in '
                               f'{STATE_WAIT:g} s', goal_x=goal[0], goal_y=goal[1])
+        if self.hold_wait is not None and time.monotonic() > self.hold_wait[2]:
+            goal, self.hold_wait = self.hold_wait[0], None
+            self.diag.problem('hold_failed', f'no reply from the hold service in {HOLD_WAIT:g} '
+                              's (wall): goal planned from the latest state, time running',
+                              goal_x=goal[0], goal_y=goal[1])
+            self._plan(goal, sends=0)
         self._release_if_idle()
         if self.held_goal is not None and time.monotonic() > self.held_goal[1]:
             goal, self.held_goal = self.held_goal[0], None
