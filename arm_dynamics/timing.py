@@ -231,13 +231,13 @@ class Timekeeper:
                 return STALE
             self.commands += 1
             self.started = True
-            if not self.answered and self.waiting_since is not None:
-                waited = (wall_ns - self.waiting_since) * 1e-9
-                self.longest_wait_s = max(self.longest_wait_s, waited)
-                if self.report_after_ns and waited * 1e9 > self.report_after_ns:
-                    self.late_waits += 1
-            if not self.answered:
+            if not self.answered:  # the first answer to this state
                 self.answered_wall = wall_ns
+                if self.waiting_since is not None:
+                    waited = (wall_ns - self.waiting_since) * 1e-9
+                    self.longest_wait_s = max(self.longest_wait_s, waited)
+                    if self.report_after_ns and waited * 1e9 > self.report_after_ns:
+                        self.late_waits += 1
             self.answered = True
             return HOLD if self.stopped(sim_ns) else ADVANCE
         self.commands += 1

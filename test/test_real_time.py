@@ -16,6 +16,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
+from test_controller_node import duration
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from arm_control.trajectory import Trajectory, TrajectoryPoint, validate_trajectory
@@ -193,7 +194,7 @@ def test_a_loaded_fast_real_time_suite_survives_goals_while_moving_and_a_huge_tr
         for k, b in enumerate(blend, start=1):
             t = k * 1e-4
             big.points.append(JointTrajectoryPoint(
-                positions=(q_now + b * (q_end - q_now)).tolist(), time_from_start=_duration(t)))
+                positions=(q_now + b * (q_end - q_now)).tolist(), time_from_start=duration(t)))
         before = accepted(diags)
         ros.publisher(JointTrajectory, 'arm_controller/joint_trajectory').publish(big)
         ros.wait_for(lambda: accepted(diags) > before, timeout=60,
@@ -211,12 +212,6 @@ def test_a_loaded_fast_real_time_suite_survives_goals_while_moving_and_a_huge_tr
             b.kill()
             b.wait()
 
-
-def _duration(t: float):
-    from builtin_interfaces.msg import Duration
-
-    sec = int(t)
-    return Duration(sec=sec, nanosec=int(round((t - sec) * 1e9)))
 
 
 def bringup_run(ros, tmp_path, mode: str) -> tuple:
