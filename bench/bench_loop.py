@@ -28,7 +28,8 @@ node:
 machine does to each mode.
 
 Run ``python bench/bench_loop.py --help`` for the options; bench/README.md explains every
-figure.
+figure. The programs it runs in subprocesses (the floor's ping-pong, the busy loops, the
+executor wrapper) are the files in ``bench/loop_programs/``.
 """
 
 from __future__ import annotations
@@ -64,31 +65,15 @@ LOCKSTEP_TARGET = 1.0  # x real time at 1 kHz
 RTF_TARGET = 0.99  # real_time: achieved x real time at 250 Hz on a quiet machine
 FLOOR_TARGET = 0.60  # two-process lockstep round trips / the floor's, at 1 kHz
 TWO_PROCESS = ('stock', 'single', 'multi')  # variants with the floor's process layout
+# The programs the bench runs as subprocesses (python FILE ARGS), next to this file so
+# that the bench runs from any working directory; each file's docstring says what it does.
+PROGRAMS = Path(__file__).resolve().parent / 'loop_programs'
 # A busy loop (--busy): PR_SET_PDEATHSIG first, so that it dies with the bench even if the
 # bench is killed outright; the bench also kills it at the end.
-BUSY_LOOP = '''
-import ctypes, signal
-try:
-    ctypes.CDLL(None).prctl(1, signal.SIGKILL)
-except Exception:
-    pass
-while True: pass
-'''
-
-# Run a node with its executor replaced: python -c WRAPPER VARIANT MODULE [--ros-args ...].
+BUSY_LOOP = PROGRAMS / 'busy_loop.py'
+# Run a node with its executor replaced: python EXECUTOR_NODE VARIANT MODULE [--ros-args ...].
 # run_node() looks arm_common.node.EXECUTOR up at call time (EventsExecutor as shipped).
-WRAPPER = '''
-import importlib, sys
-from rclpy import executors
-from arm_common import node as ros_common
-variant, module = sys.argv[1], sys.argv[2]
-del sys.argv[1:3]
-if variant == 'single':
-    ros_common.EXECUTOR = executors.SingleThreadedExecutor
-elif variant == 'multi':
-    ros_common.EXECUTOR = executors.MultiThreadedExecutor
-sys.exit(importlib.import_module(module).main())
-'''
+EXECUTOR_NODE = PROGRAMS / 'executor_node.py'
 
 
 def say(text: str) -> None:
@@ -144,41 +129,9 @@ def command_answers_ns(raw: bytes) -> int | None:
 
 
 # The middleware floor: two processes bouncing one small message back and forth with the
-# nodes' executor and QoS, callbacks doing nothing else: python -c PING_PONG ROLE SECONDS.
+# nodes' executor and QoS, callbacks doing nothing else: python PING_PONG ROLE SECONDS.
 # The pinger prints its round trips per wall second; no lockstep over ROS can beat it.
-PING_PONG = '''
-import sys, time
-import rclpy
-from rclpy.experimental import EventsExecutor
-from std_msgs.msg import Float64MultiArray
-role, seconds = sys.argv[1], float(sys.argv[2])
-rclpy.init()
-node = rclpy.create_node('bench_loop_' + role)
-out, into = ('ping', 'pong') if role == 'pinger' else ('pong', 'ping')
-pub = node.create_publisher(Float64MultiArray, out, 10)
-msg = Float64MultiArray(data=[0.0, 0.0])
-count = [0]
-def answer(m):
-    count[0] += 1
-    pub.publish(msg if role == 'pinger' else m)
-node.create_subscription(Float64MultiArray, into, answer, 10)
-executor = EventsExecutor()
-executor.add_node(node)
-end = time.monotonic() + seconds
-if role == 'pinger':
-    while time.monotonic() < end and count[0] == 0:
-        if pub.get_subscription_count() and node.count_publishers(into):
-            pub.publish(msg)
-        executor.spin_once(timeout_sec=0.2)
-    while time.monotonic() < end and count[0] < 200:
-        executor.spin_once(timeout_sec=0.2)
-    n0, t0 = count[0], time.perf_counter()
-    end = time.monotonic() + seconds / 2
-while time.monotonic() < end:
-    executor.spin_once(timeout_sec=0.1)
-if role == 'pinger':
-    print((count[0] - n0) / (time.perf_counter() - t0), flush=True)
-'''
+PING_PONG = PROGRAMS / 'ping_pong.py'
 
 
 def ping_pong_floor(seconds: float) -> float:
@@ -186,10 +139,10 @@ def ping_pong_floor(seconds: float) -> float:
     bench's domain (measured over the second half of ``seconds``); NaN if it failed."""
     import subprocess
 
-    echo = subprocess.Popen([sys.executable, '-c', PING_PONG, 'echo', str(seconds + 5.0)],
+    echo = subprocess.Popen([sys.executable, str(PING_PONG), 'echo', str(seconds + 5.0)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        pinger = subprocess.run([sys.executable, '-c', PING_PONG, 'pinger', str(seconds)],
+        pinger = subprocess.run([sys.executable, str(PING_PONG), 'pinger', str(seconds)],
                                 capture_output=True, text=True, timeout=seconds + 30.0)
         return float(pinger.stdout.strip() or 'nan')
     except (subprocess.TimeoutExpired, ValueError):
@@ -201,7 +154,7 @@ def ping_pong_floor(seconds: float) -> float:
 
 @contextmanager
 def busy_loops(n: int):
-    """N busy-loop processes (``while True: pass``) for the duration of the ``with``: they
+    """N busy-loop processes (:data:`BUSY_LOOP`) for the duration of the ``with``: they
     are killed when it ends, however it ends (an exception, Ctrl-C; SIGTERM is turned into
     SystemExit meanwhile so that it unwinds too; and each loop dies with the bench)."""
     import subprocess
@@ -213,7 +166,7 @@ def busy_loops(n: int):
     procs: list[subprocess.Popen] = []
     try:
         for _ in range(n):
-            procs.append(subprocess.Popen([sys.executable, '-c', BUSY_LOOP],
+            procs.append(subprocess.Popen([sys.executable, str(BUSY_LOOP)],
                                           stdin=subprocess.DEVNULL,
                                           stdout=subprocess.DEVNULL,
                                           stderr=subprocess.DEVNULL))
@@ -264,7 +217,7 @@ class Loop:
             yield
             return
         with mock.patch.object(launcher, 'executable', lambda name: [
-                sys.executable, '-c', WRAPPER, self.variant, launcher.MODULES[name]]):
+                sys.executable, str(EXECUTOR_NODE), self.variant, launcher.MODULES[name]]):
             yield
 
     def alive(self) -> bool:
@@ -903,8 +856,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                     help='run every configuration this many times, interleaved; the table '
                          'gives median real-time factors and pooled counts and samples')
     ap.add_argument('--busy', type=int, default=0, metavar='N',
-                    help='run N busy-loop processes (python -c "while True: pass") during '
-                         'every measurement, floor and no-ROS peer included (default 0)')
+                    help='run N busy-loop processes (bench/loop_programs/busy_loop.py: '
+                         '"while True: pass") during every measurement, floor and no-ROS '
+                         'peer included (default 0)')
     ap.add_argument('--domain', type=int, default=None,
                     help=f'ROS_DOMAIN_ID for every process (default: {DEFAULT_DOMAIN} or the '
                     'next one no other arm_sim process on this machine holds)')

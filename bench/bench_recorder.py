@@ -11,7 +11,8 @@ rate for ``--seconds``. At each rate two subscribers take it in turn, in the sam
   (depth 1000) spun by SingleThreadedExecutor, counting messages.
 
 Printed per rate: messages sent, kept, lost, for each. The highest rate with zero loss is
-the figure the README quotes. Each trial uses its own private ROS domain, localhost only.
+the figure docs/benchmarks.md (Recorder) quotes. Each trial uses its own private ROS
+domain, localhost only.
 Run: ``python bench/bench_recorder.py [--rates 5000,10000,20000,30000] [--seconds 3]``.
 """
 
