@@ -17,6 +17,8 @@ from arm_bag.synthetic import ROBOT as BAG_ROBOT
 from arm_bag.synthetic import open_bag, write_run
 from arm_common import cluster
 from arm_control.laws import LAWS, ControlLaw, Gains, law_torque
+from arm_dynamics.batch import BatchSimulator
+from arm_dynamics.simulation import SimulatorCore
 from arm_dynamics.two_link import TwoLinkArm, TwoLinkBatch
 from arm_sim import sweep
 from arm_sim.cli import main
@@ -25,7 +27,9 @@ from arm_sim.sweep import (
     METRIC_COLUMNS,
     PF,
     PS,
+    PlotSpec,
     Scenario,
+    default_plot,
     load_spec,
     make_chunks,
     parse_spec,
@@ -33,6 +37,7 @@ from arm_sim.sweep import (
     run_chunk,
     run_single,
     run_sweep,
+    sweep_figure,
     write_csv,
 )
 
@@ -115,6 +120,58 @@ def test_the_batch_law_equals_the_controllers_law_row_by_row(law):
     assert np.abs(new - np.array([s[1] for s in single])).max() <= 1e-12
 
 
+def test_the_batch_simulator_steps_each_arm_as_the_simulator_core_does():
+    arms = [TwoLinkArm(), TwoLinkArm().with_payload(0.8), TwoLinkArm(link_masses=(2.5, 1.0))]
+    q0, qd0 = RNG.uniform(-1, 1, (3, 2)), RNG.uniform(-1, 1, (3, 2))
+    limits = np.array([[60.0, 20.0], [30.0, 10.0], [5.0, 5.0]])
+    timing = dict(physics_step_ns=1_000_000, control_period_ns=5_000_000, velocity_limit=1e3)
+    batch = BatchSimulator(arms, q0=q0, qd0=qd0, effort_limits=limits, **timing)
+    cores = [SimulatorCore(a, q0=q0[i], qd0=qd0[i], effort_limits=limits[i],
+                           joint_names=('j1', 'j2'), **timing) for i, a in enumerate(arms)]
+    for _ in range(40):
+        command = RNG.uniform(-50, 50, (3, 2))  # often beyond the limits: saturated
+        batch.advance(command)
+        for i, core in enumerate(cores):
+            core.set_command(command[i])
+            core.advance()
+        assert np.array_equal(batch.applied, [c.applied for c in cores])
+        gap = max(np.abs(batch.q - [c.q for c in cores]).max(),
+                  np.abs(batch.qd - [c.qd for c in cores]).max() * 1e-2)
+        assert gap <= 1e-12, gap
+    assert batch.periods == 40 and batch.alive.all() and (batch.diverged_at == -1).all()
+    assert not any(c.diverged for c in cores)
+
+
+def test_a_diverging_arm_of_the_batch_is_held_with_zero_torque_and_the_others_go_on():
+    arms = [TwoLinkArm(), TwoLinkArm().with_payload(0.5), TwoLinkArm()]
+    q0 = np.array([[0.1, 0.5], [0.2, 0.4], [-0.3, 1.0]])
+    timing = dict(physics_step_ns=1_000_000, control_period_ns=10_000_000, velocity_limit=50.0)
+    batch = BatchSimulator(arms, q0=q0, qd0=np.zeros((3, 2)),
+                           effort_limits=np.full((3, 2), 1e6), **timing)
+    others = BatchSimulator([arms[0], arms[2]], q0=q0[[0, 2]], qd0=np.zeros((2, 2)),
+                            effort_limits=np.full((2, 2), 1e6), **timing)
+    held = None
+    for k in range(1, 21):
+        command = np.array([[5.0, 1.0], [3000.0, -3000.0], [-5.0, 0.0]])  # arm 1 runs away
+        before = batch.q[1].copy(), batch.qd[1].copy()
+        batch.advance(command)
+        others.advance(command[[0, 2]])
+        if batch.diverged_at[1] == k:  # this period: back to the last good state
+            held = before
+        if held is not None:
+            assert np.array_equal(batch.q[1], held[0]) and np.array_equal(batch.qd[1], held[1])
+            assert (batch.applied[1] == 0.0).all()
+        assert np.abs(batch.q[[0, 2]] - others.q).max() <= 1e-12
+        assert np.array_equal(batch.applied[[0, 2]], others.applied)
+    assert held is not None and 1 <= batch.diverged_at[1] < 20, batch.diverged_at
+    assert batch.diverged_at[[0, 2]].tolist() == [-1, -1]
+    assert batch.alive.tolist() == [True, False, True]
+    assert np.abs(held[1]).max() <= 50.0  # the held state is a good one
+    with pytest.raises(ValueError, match=r'q0 must have shape \(3, 2\)'):
+        BatchSimulator(arms, q0=np.zeros((2, 2)), qd0=np.zeros((3, 2)),
+                       effort_limits=np.ones((3, 2)), **timing)
+
+
 def test_a_batch_of_mixed_scenarios_runs_as_each_does_alone_through_simulate():
     for chunk in make_chunks(MIX, 64):
         rows, runs = run_chunk(chunk, keep_runs=True)
@@ -187,7 +244,11 @@ def test_a_diverging_or_refused_scenario_is_a_row_with_its_reason_not_an_error()
 @pytest.mark.parametrize('text, message', [
     ('scenario: {gian: 3}', "spec.yaml: key 'gian' unknown (known: task, start"),
     ('axes: {duration: []}', 'axes.duration: no values'),
-    ('axes: {duration: [0.5, -1]}', 'duration must be a finite number > 0'),
+    ('axes: {duration: [0.5, -1]}', 'axes.duration: duration must be > 0 s, got -1 (range '
+     '(0, 3600])'),
+    ('scenario: {payload: -0.5}', 'scenario.payload: payload must be >= 0 kg, got -0.5'),
+    ('scenario: {kp: [100, -2]}', 'scenario.kp: kp[1] must be >= 0'),
+    ('scenario: {law: 5}', "law must be one of pd, pd_gravity, computed_torque, pid; got 5"),
     ('axes: {law: [pd, lqr]}', "law must be one of pd, pd_gravity, computed_torque, pid; "
      "got 'lqr'"),
     ('axes: {duration: {linspace: [0.5, 1.0]}}', 'linspace takes [first, last, count'),
@@ -279,9 +340,37 @@ def test_the_cli_writes_a_csv_a_png_and_json_with_the_documented_columns(tmp_pat
 
 
 def test_plot_draws_the_default_question_without_a_plot_section(tmp_path):
+    import matplotlib.pyplot as plt
+
     spec = parse_spec({'axes': {'payload': [0.0, 1.0], 'law': ['pd_gravity', 'pid']},
                        'scenario': {'hold': 0.1, 'duration': 0.5}})
-    path = plot_sweep(spec, run_sweep(spec.scenarios(), workers=1), tmp_path / 'p.png')
+    rows = run_sweep(spec.scenarios(), workers=1)
+    assert [r['status'] for r in rows] == ['ok'] * 4
+    # The default question: the numeric axis across, one curve per law, the peak torques
+    # and the straight line's deviation up.
+    ps = default_plot(spec)
+    assert ps == PlotSpec(x='payload', y=('torque_peak_1', 'torque_peak_2', 'deviation_max'),
+                          by='law')
+    fig = sweep_figure(spec, rows)
+    try:
+        axes = fig.axes
+        assert [ax.get_ylabel() for ax in axes] == [
+            'torque_peak_1 [N m]', 'torque_peak_2 [N m]', 'deviation_max [m]']
+        assert axes[-1].get_xlabel() == 'payload [kg]'
+        for ax, col, limit in zip(axes, ps.y, (60.0, 20.0, None)):
+            lines = ax.get_lines()
+            curves = {ln.get_label(): ln for ln in lines if ln.get_label().startswith('law')}
+            assert sorted(curves) == ['law = pd_gravity', 'law = pid'], col
+            for law in ('pd_gravity', 'pid'):
+                mine = sorted((r['payload'], r[col]) for r in rows if r['law'] == law)
+                xy = curves[f'law = {law}'].get_xydata().tolist()
+                assert xy == [[x, y] for x, y in mine], (col, law)
+            # the effort limit on the torque panels, nothing else
+            others = [ln.get_ydata()[0] for ln in lines if ln not in curves.values()]
+            assert others == ([] if limit is None else [limit]), col
+    finally:
+        plt.close(fig)
+    path = plot_sweep(spec, rows, tmp_path / 'p.png')
     assert path.read_bytes()[:4] == b'\x89PNG'
 
 

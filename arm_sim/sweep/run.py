@@ -1,0 +1,268 @@
+"""Running a sweep's scenarios: the batch closed loop, chunks, worker processes, Dask.
+
+Pure: no rclpy. A chunk of scenarios sharing law, control rate and physics step runs as
+one batch (:func:`run_chunk`): the control law of :mod:`arm_control.laws` on the (B, 2)
+state (:func:`~arm_control.laws.law_torque`, the controller's saturation) and the plants of
+:class:`~arm_dynamics.batch.BatchSimulator` (held command, the simulator's saturation, RK4,
+divergence). :func:`run_single` runs one scenario the nodes' way instead;
+:func:`run_sweep` runs the chunks in this process, in worker processes or on a Dask
+cluster (the functions they run are referenced by module path, so they pickle).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from arm_control.core import ControllerCore
+from arm_control.laws import Gains, law_torque
+from arm_dynamics.batch import BatchSimulator
+from arm_dynamics.integrate import simulate
+from arm_dynamics.robot import JOINT_NAMES
+from arm_dynamics.two_link import TwoLinkBatch
+from arm_sim.sweep.metrics import Run, finish_row, new_row
+from arm_sim.sweep.plan import Planned, plan_scenario
+from arm_sim.sweep.spec import Scenario, SpecError
+
+VELOCITY_LIMIT = 1000.0   # rad/s: faster is divergence (the simulator's velocity_limit)
+
+
+def _ticks(s: Scenario, planned: Planned) -> int:
+    """Control periods simulated: the motion plus ``hold``, rounded up."""
+    period = round(1e9 / s.control_rate) * 1e-9
+    return max(1, math.ceil((planned.duration + s.hold) / period - 1e-9))
+
+
+def run_chunk(items: Sequence[tuple[int, Scenario]], keep_runs: bool = False
+              ) -> list[dict] | tuple[list[dict], list[Run | None]]:
+    """Run scenarios as one batch; they must share law, control rate and physics step.
+
+    Parameters
+    ----------
+    items : (index, scenario) pairs.
+    keep_runs : also return each scenario's :class:`~arm_sim.sweep.metrics.Run` (None
+        where refused).
+
+    Returns
+    -------
+    One result row per item (keys :data:`~arm_sim.sweep.columns.COLUMNS`), in order (and
+    the runs).
+    """
+    if not items:
+        return ([], []) if keep_runs else []
+    first = items[0][1]
+    law, (step_ns, substeps) = first.law, first.timing()
+    if any(s.law != law or s.timing() != (step_ns, substeps) for _, s in items):
+        raise ValueError('run_chunk: the scenarios of one chunk must share law, '
+                         'control_rate and physics_step')
+    planned = [plan_scenario(s) for _, s in items]
+    rows = [new_row(i, s, p) for (i, s), p in zip(items, planned)]
+    runs: list[Run | None] = [None] * len(items)
+    live = [k for k, p in enumerate(planned) if p.trajectory is not None]
+    if live:
+        for k, run in zip(live, _run_batch([items[k][1] for k in live],
+                                           [planned[k] for k in live],
+                                           law, step_ns, substeps)):
+            runs[k] = run
+            finish_row(rows[k], items[k][1], planned[k], run)
+    return (rows, runs) if keep_runs else rows
+
+
+def _rows_of(items: Sequence[tuple[int, Scenario]]) -> list[dict]:
+    """The rows of :func:`run_chunk` (what a worker process or a Dask task runs)."""
+    rows = run_chunk(items)
+    assert isinstance(rows, list)
+    return rows
+
+
+def _run_batch(scenarios: Sequence[Scenario], planned: Sequence[Planned], law: str,
+               step_ns: int, substeps: int) -> list[Run]:
+    """The closed loop of B scenarios stepped together: at each control tick the law on
+    the measured (B, 2) state, saturated by the controller, then one period of the plants
+    (:meth:`BatchSimulator.advance <arm_dynamics.batch.BatchSimulator.advance>`)."""
+    dt = step_ns * 1e-9
+    ticks = np.array([_ticks(s, p) for s, p in zip(scenarios, planned)])
+    n = int(ticks.max())
+    t = (np.arange(n + 1) * substeps) * dt  # as simulate() times its control ticks
+    # The reference of each distinct plan at every tick (sampled as the controller does).
+    plan_ids: dict[int, int] = {}
+    index = np.array([plan_ids.setdefault(id(p.trajectory), len(plan_ids)) for p in planned])
+    refs: list[tuple[np.ndarray, ...] | None] = [None] * len(plan_ids)
+    for p in planned:
+        k = plan_ids[id(p.trajectory)]
+        if refs[k] is None:
+            assert p.trajectory is not None
+            refs[k] = p.trajectory.sample_many(t)
+    ref_q, ref_qd, ref_qdd = (np.stack([r[i] for r in refs if r is not None], 1)
+                              for i in range(3))
+    model = TwoLinkBatch([s.model() for s in scenarios])
+    kp, kd, ki, clamp = (np.array([getattr(s, g) for s in scenarios])
+                         for g in ('kp', 'kd', 'ki', 'i_clamp'))
+    limits = np.array([s.effort_limits for s in scenarios])
+    sim = BatchSimulator([s.plant() for s in scenarios],
+                         q0=np.array([p.q_start for p in planned]),
+                         qd0=np.zeros((len(scenarios), 2)), effort_limits=limits,
+                         physics_step_ns=step_ns, control_period_ns=step_ns * substeps,
+                         velocity_limit=VELOCITY_LIMIT)
+    integral = np.zeros((len(scenarios), 2))
+    qs, qds, efforts = (np.empty((n + 1, len(scenarios), 2)) for _ in range(3))
+    qs[0], qds[0] = sim.q, sim.qd
+    for k in range(n):
+        dtk = 0.0 if k == 0 else t[k] - t[k - 1]
+        raw, integral = law_torque(law, kp, kd, ki, clamp, limits, model, integral, sim.q,
+                                   sim.qd, ref_q[k, index], ref_qd[k, index],
+                                   ref_qdd[k, index], dtk)
+        sim.advance(np.clip(raw, -limits, limits))  # the controller saturates its command
+        efforts[k + 1] = sim.applied
+        qs[k + 1], qds[k + 1] = sim.q, sim.qd
+    efforts[0] = efforts[min(1, n)]
+    died = sim.diverged_at
+    out = []
+    for i in range(len(scenarios)):
+        m = int(ticks[i]) + 1
+        msg = None
+        if died[i] >= 0 and died[i] < m:
+            msg = (f'diverged at t={t[died[i]]:.3f} s (|qd| > {VELOCITY_LIMIT:g} rad/s or '
+                   'non-finite)')
+        out.append(Run(t[:m], qs[:m, i], qds[:m, i], efforts[:m, i],
+                       ref_q[:m, index[i]], msg))
+    return out
+
+
+def run_single(index: int, s: Scenario, keep_run: bool = False
+               ) -> dict | tuple[dict, Run | None]:
+    """One scenario the nodes' way, one state at a time: the controller core
+    (:class:`~arm_control.core.ControllerCore` with :class:`~arm_control.laws.ControlLaw`)
+    as the torque law of :func:`~arm_dynamics.integrate.simulate` at the control period,
+    the plant's single-state RK4. Returns the result row (and the run). No divergence
+    handling: for comparisons and benchmarks."""
+    from arm_control.laws import ControlLaw
+
+    planned = plan_scenario(s)
+    row = new_row(index, s, planned)
+    if planned.trajectory is None:
+        return (row, None) if keep_run else row
+    step_ns, substeps = s.timing()
+    dt = step_ns * 1e-9
+    ticks = _ticks(s, planned)
+    law = ControlLaw(s.law, Gains(kp=s.kp, kd=s.kd, ki=s.ki, i_clamp=s.i_clamp), s.model(),
+                     s.effort_limits)
+    core = ControllerCore(JOINT_NAMES, law)
+    core.trajectory, core.start = planned.trajectory, 0.0
+    refs: list[np.ndarray] = []
+
+    def torque(t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        step = core.update(t, q, qd)
+        refs.append(step.q_des)
+        return step.command.tau
+
+    sim = simulate(model=s.plant(), q0=planned.q_start, qd0=np.zeros(2), torque=torque,
+                   duration=ticks * substeps * dt, dt=dt, control_period=substeps * dt,
+                   effort_limits=s.effort_limits)
+    tau = sim.tau[::substeps]
+    run = Run(sim.t[::substeps], sim.q[::substeps], sim.qd[::substeps],
+              np.vstack([tau[:1], tau[:-1]]), np.array(refs[:ticks + 1]))
+    finish_row(row, s, planned, run)
+    return (row, run) if keep_run else row
+
+
+# ---------------------------------------------------------------------- orchestration
+def make_chunks(scenarios: Sequence[Scenario], chunk_size: int
+                ) -> list[list[tuple[int, Scenario]]]:
+    """Scenarios grouped by (law, timing), sorted by requested duration within a group
+    (chunks then run to similar horizons), cut into chunks of at most ``chunk_size``."""
+    if chunk_size < 1:
+        raise ValueError(f'chunk_size must be >= 1, got {chunk_size}')
+    groups: dict[tuple, list[tuple[int, Scenario]]] = {}
+    for i, s in enumerate(scenarios):
+        groups.setdefault((s.law, s.timing()), []).append((i, s))
+    chunks = []
+    for items in groups.values():
+        items.sort(key=lambda it: (0.0 if it[1].duration == 'fastest' else it[1].duration,
+                                   it[0]))
+        chunks += [items[k:k + chunk_size] for k in range(0, len(items), chunk_size)]
+    return chunks
+
+
+def default_chunk_size(count: int, workers: int) -> int:
+    """About four chunks per worker, 32 to 1024 scenarios each."""
+    return int(min(1024, max(32, math.ceil(count / max(1, 4 * workers)))))
+
+
+class Progress:
+    """``[sweep] 4000/10000 scenarios, 6.1 s, ETA 9 s`` on ``stream``, at most every
+    ``every`` s of wall time, and a last line when done (if any was printed)."""
+
+    def __init__(self, total: int, stream=sys.stderr, every: float = 1.0) -> None:
+        self.total, self.stream, self.every = total, stream, every
+        self.done = 0
+        self.start = time.monotonic()
+        self.last = self.start
+        self.printed = False
+
+    def add(self, count: int) -> None:
+        self.done += count
+        now = time.monotonic()
+        if now - self.last >= self.every or (self.printed and self.done == self.total):
+            self.last = now
+            self.printed = True
+            spent = now - self.start
+            eta = spent / self.done * (self.total - self.done) if self.done else math.nan
+            print(f'[sweep] {self.done}/{self.total} scenarios, {spent:.1f} s, ETA '
+                  f'{eta:.0f} s', file=self.stream, flush=True)
+
+
+def run_sweep(scenarios: Sequence[Scenario], *, workers: int = 2,
+              chunk_size: int | None = None, dask: str | None = None,
+              progress: Callable[[int], None] | None = None) -> list[dict]:
+    """Run every scenario; one row per scenario (keys
+    :data:`~arm_sim.sweep.columns.COLUMNS`), in input order.
+
+    Parameters
+    ----------
+    scenarios : the sweep's scenarios.
+    workers : local processes (1: in this process). Ignored with ``dask``.
+    chunk_size : scenarios per batch (default :func:`default_chunk_size`).
+    dask : a Dask scheduler address (``tcp://host:8786``): run the chunks there.
+    progress : called with the number of scenarios each finished chunk held.
+    """
+    if workers < 1:
+        raise ValueError(f'workers must be >= 1, got {workers}')
+    size = chunk_size or default_chunk_size(len(scenarios), workers)
+    chunks = make_chunks(scenarios, size)
+    rows: list[dict | None] = [None] * len(scenarios)
+
+    def take(chunk_rows: list[dict]) -> None:
+        for r in chunk_rows:
+            rows[r['index']] = r
+        if progress:
+            progress(len(chunk_rows))
+
+    if dask:
+        _run_dask(dask, chunks, take)
+    elif workers == 1 or len(chunks) <= 1:
+        for c in chunks:
+            take(_rows_of(c))
+    else:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(max_workers=min(workers, len(chunks))) as pool:
+            futures = [pool.submit(_rows_of, c) for c in chunks]
+            for f in as_completed(futures):
+                take(f.result())
+    assert all(r is not None for r in rows)
+    return rows  # type: ignore[return-value]
+
+
+def _run_dask(address: str, chunks: list, take: Callable[[list[dict]], None]) -> None:
+    """Run the chunks on the Dask cluster at ``address`` (imports dask only there)."""
+    from arm_common.cluster import ClusterError, dask_map
+
+    try:
+        dask_map(address, _rows_of, chunks, on_result=lambda _i, rows: take(rows))
+    except ClusterError as exc:
+        raise SpecError(str(exc)) from None

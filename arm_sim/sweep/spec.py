@@ -1,0 +1,440 @@
+"""A sweep's spec: the scenario settings, the scenarios, and the YAML that lists them.
+
+Pure: no rclpy.
+
+Every scenario setting is an :class:`~arm_common.params.ParamSpec` (:data:`SETTINGS`: name,
+kind, default, meaning, unit, range or choices), checked by :meth:`ParamSpec.check
+<arm_common.params.ParamSpec.check>` as the nodes check their parameters, with the sweep's
+own forms on top: a per-joint pair may be one number (both joints), a tip position is
+``[x, y]``, a duration may be ``fastest``. A :class:`Scenario` validates itself; a
+:class:`Spec` is a parsed spec file (:func:`parse_spec`, :func:`load_spec`) whose
+:meth:`Spec.scenarios` are the grid's combinations or the random draws. Every refusal is
+one line naming the key, the value and where (:class:`SpecError`).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from arm_common.params import ParamSpec
+from arm_control.laws import LAWS, Gains
+from arm_dynamics.limits import DEFAULT_EFFORT
+from arm_dynamics.two_link import TwoLinkArm
+from arm_planner.planner import FEASIBILITY, MAX_DURATION
+from arm_planner.time_scaling import KINDS
+from arm_sim.sweep.columns import COLUMNS
+
+MAX_SCENARIOS = 1_000_000
+ROBOT = TwoLinkArm()      # the robot of config/arm.yaml (the model defaults)
+PS = tuple(float(v) for v in ROBOT.forward_kinematics([-0.4, 1.2]))  # the demo's Ps, m
+PF = (0.5, 1.2)           # the demo's Pf, m
+TASKS = ('regulation', 'straight_line')
+PROFILES = ('synchronized', 'set_point')
+ELBOWS = ('down', 'up')
+VARIANT = 'variant'       # the axis whose values are bundles of settings
+
+
+class SpecError(ValueError):
+    """A sweep spec that cannot run; the message (one line) names the key and the value."""
+
+
+# ---------------------------------------------------------------------- settings
+_GAINS = Gains()
+
+#: Every scenario setting, in order: ``kind`` 'string' (one of ``choices``), 'double' or
+#: 'doubles' of ``length`` 2 (per joint, or a tip position [x, y]), ``minimum`` /
+#: ``maximum`` bounding every number. The check is :func:`check_setting`.
+SETTINGS: dict[str, ParamSpec] = {p.name: p for p in (
+    ParamSpec('task', 'string', 'straight_line', 'regulation | straight_line',
+              choices=TASKS),
+    ParamSpec('start', 'doubles', PS, "start tip position [x, y] (at rest; the demo's Ps)",
+              'm', length=2),
+    ParamSpec('goal', 'doubles', PF, "goal tip position [x, y] (the demo's Pf)", 'm',
+              length=2),
+    ParamSpec('elbow', 'string', 'down', 'elbow branch of the start: down (q2 > 0) | up',
+              choices=ELBOWS),
+    ParamSpec('duration', 'double', 1.0, "motion duration, or 'fastest' feasible within the "
+              'effort limits', 's', minimum=0.0, maximum=MAX_DURATION, strict_min=True),
+    ParamSpec('time_scaling', 'string', 'quintic', 'quintic | trapezoidal', choices=KINDS),
+    ParamSpec('regulation_profile', 'string', 'synchronized',
+              'regulation: synchronized | set_point', choices=PROFILES),
+    ParamSpec('feasibility', 'string', 'stretch', 'planner vs effort limits: stretch (slow '
+              'down to fit) | refuse | ignore (plan as asked; the torque saturates)',
+              choices=(*FEASIBILITY, 'ignore')),
+    ParamSpec('law', 'string', 'computed_torque', ' | '.join(LAWS), choices=LAWS),
+    ParamSpec('kp', 'doubles', _GAINS.kp, 'proportional gain',
+              '1/s^2 (computed_torque), N m/rad (others)', minimum=0.0, length=2),
+    ParamSpec('kd', 'doubles', _GAINS.kd, 'derivative gain',
+              '1/s (computed_torque), N m s/rad (others)', minimum=0.0, length=2),
+    ParamSpec('ki', 'doubles', _GAINS.ki, 'integral gain (pid)', 'N m/(rad s)', minimum=0.0,
+              length=2),
+    ParamSpec('i_clamp', 'doubles', _GAINS.i_clamp, 'bound of the integral term (pid)', 'N m',
+              minimum=0.0, length=2),
+    ParamSpec('payload', 'double', 0.0, 'point mass at the tip of the plant, unknown to the '
+              'controller and the planner', 'kg', minimum=0.0, maximum=1e4),
+    ParamSpec('mass_error', 'double', 0.0, "the controller's model link masses are (1 + e) "
+              'times the real ones', 'fraction', minimum=-1.0, maximum=100.0,
+              strict_min=True),
+    ParamSpec('length_error', 'double', 0.0, "the controller's model link lengths and centre "
+              'of gravity distances are (1 + e) times the real ones', 'fraction',
+              minimum=-1.0, maximum=100.0, strict_min=True),
+    ParamSpec('control_rate', 'double', 100.0, 'control (state and command) rate; 1/rate a '
+              'whole multiple of physics_step', 'Hz', minimum=0.0, maximum=1e5,
+              strict_min=True),
+    ParamSpec('physics_step', 'double', 0.001, 'RK4 step of the plant', 's', minimum=1e-6,
+              maximum=1.0),
+    ParamSpec('effort_limits', 'doubles', DEFAULT_EFFORT,
+              'torque limits (planner, controller and simulator)', 'N m', minimum=0.0,
+              maximum=1e6, strict_min=True, length=2),
+    ParamSpec('hold', 'double', 1.0, 'simulated time after the motion ends', 's', minimum=0.0,
+              maximum=MAX_DURATION),
+)}
+#: The pairs that are tip positions (always [x, y]; other pairs may be one number).
+POINTS = ('start', 'goal')
+#: Per pair: the checks of one number given for both joints, of item 0 and of item 1
+#: (each a 'double' ParamSpec, named ``kp``, ``kp[0]``, ``kp[1]`` in its messages).
+_ITEMS = {n: (replace(p, kind='double', length=None),
+              *(replace(p, name=f'{n}[{i}]', kind='double', length=None) for i in (0, 1)))
+          for n, p in SETTINGS.items() if p.kind == 'doubles'}
+
+
+def _number(param: ParamSpec, value: object) -> float:
+    """``value`` as a float, or ValueError with :meth:`ParamSpec.check`'s reason (and the
+    whole range where the setting has a maximum: the reason names the bound it broke)."""
+    if isinstance(value, (np.integer, np.floating)):
+        value = value.item()  # numpy numbers are numbers (ParamSpec knows int and float)
+    reason = param.check(value)
+    if reason:
+        if param.maximum is not None and param.minimum is not None:
+            reason += (f" (range {'(' if param.strict_min else '['}{param.minimum:g}, "
+                       f'{param.maximum:g}])')
+        raise ValueError(reason)
+    return float(value)  # type: ignore[arg-type]
+
+
+def check_setting(name: str, value: object) -> Any:
+    """``value`` for setting ``name``, normalised: a string, a float (or ``'fastest'``),
+    or a pair as a tuple of two floats (one number: the same on both joints); raises
+    ValueError naming the setting and the value (:meth:`ParamSpec.check`'s reason)."""
+    param = SETTINGS[name]
+    if param.kind == 'string':
+        if not isinstance(value, str):  # ParamSpec would say "a string": name the choices
+            raise ValueError(f"{name} must be one of {', '.join(param.choices or ())}; got "
+                             f'{value!r}')
+        reason = param.check(value)
+        if reason:
+            raise ValueError(reason)
+        return str(value)
+    if name == 'duration' and isinstance(value, str):
+        if value == 'fastest':
+            return value
+        raise ValueError(f"{name} must be a number of seconds or 'fastest', got {value!r}")
+    if param.kind == 'double':
+        return _number(param, value)
+    one, first, second = _ITEMS[name]
+    if isinstance(value, (list, tuple, np.ndarray)):
+        if len(value) == 2:
+            return _number(first, value[0]), _number(second, value[1])
+        if name not in POINTS:
+            raise ValueError(f'{name} must be a number or two numbers, got {list(value)!r}')
+    elif name not in POINTS:
+        x = _number(one, value)
+        return x, x
+    raise ValueError(f'{name} must be a tip position [x, y] in m, got {value!r}')
+
+
+# ---------------------------------------------------------------------- scenarios
+def _default(name: str) -> Any:
+    return SETTINGS[name].default
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One closed-loop run; field meanings and units in :data:`SETTINGS` (pairs are per
+    joint). Validates itself: a bad value raises ValueError naming it."""
+
+    task: str = _default('task')
+    start: tuple[float, float] = _default('start')
+    goal: tuple[float, float] = _default('goal')
+    elbow: str = _default('elbow')
+    duration: float | str = _default('duration')
+    time_scaling: str = _default('time_scaling')
+    regulation_profile: str = _default('regulation_profile')
+    feasibility: str = _default('feasibility')
+    law: str = _default('law')
+    kp: tuple[float, float] = _default('kp')
+    kd: tuple[float, float] = _default('kd')
+    ki: tuple[float, float] = _default('ki')
+    i_clamp: tuple[float, float] = _default('i_clamp')
+    payload: float = _default('payload')
+    mass_error: float = _default('mass_error')
+    length_error: float = _default('length_error')
+    control_rate: float = _default('control_rate')
+    physics_step: float = _default('physics_step')
+    effort_limits: tuple[float, float] = _default('effort_limits')
+    hold: float = _default('hold')
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            object.__setattr__(self, f.name, check_setting(f.name, getattr(self, f.name)))
+        self.timing()  # raises on a control period that is no whole number of steps
+        if self.duration == 'fastest' and self.feasibility == 'ignore':
+            raise ValueError("duration 'fastest' is fastest within the effort limits: "
+                             "feasibility must be stretch or refuse, not 'ignore'")
+
+    def timing(self) -> tuple[int, int]:
+        """(physics step [ns], RK4 steps per control period), as the simulator's
+        ``physics_step`` and ``publish_rate`` parameters make them."""
+        step_ns = round(self.physics_step * 1e9)
+        period_ns = round(1e9 / self.control_rate)
+        if step_ns < 1 or period_ns % step_ns:
+            raise ValueError(f'control_rate {self.control_rate:g} Hz: the control period '
+                             f'{period_ns} ns is not a whole multiple of physics_step '
+                             f'{self.physics_step:g} s')
+        return step_ns, period_ns // step_ns
+
+    def plant(self) -> TwoLinkArm:
+        """The simulated arm: the robot with ``payload`` kg at the tip of link 2
+        (:meth:`TwoLinkArm.with_payload <arm_dynamics.two_link.TwoLinkArm.with_payload>`)."""
+        return ROBOT.with_payload(self.payload)
+
+    def model(self) -> TwoLinkArm:
+        """The controller's model: the robot (without the payload) with the errors
+        (:meth:`TwoLinkArm.with_errors <arm_dynamics.two_link.TwoLinkArm.with_errors>`)."""
+        return ROBOT.with_errors(self.mass_error, self.length_error)
+
+
+# ---------------------------------------------------------------------- spec
+@dataclass(frozen=True)
+class PlotSpec:
+    """What ``--plot`` draws: ``y`` columns against ``x``, one curve per value of ``by``."""
+
+    x: str
+    y: tuple[str, ...]
+    by: str | None = None
+
+
+@dataclass(frozen=True)
+class Spec:
+    """A parsed sweep spec (see ``arm-sim sweep --help``)."""
+
+    name: str
+    question: str
+    kind: str
+    scenario: dict
+    axes: dict
+    samples: int = 0
+    seed: int = 0
+    plot: PlotSpec | None = None
+
+    def scenarios(self) -> list[Scenario]:
+        """Every scenario: the grid's combinations (axes in spec order, the last varying
+        fastest) or ``samples`` random draws (each axis drawn independently)."""
+        base = dict(self.scenario)
+        names = list(self.axes)
+        if self.kind == 'grid':
+            combos: Iterable[Sequence] = itertools.product(*(self.axes[n] for n in names))
+        else:
+            rng = np.random.default_rng(self.seed)
+            draws = [_draw(rng, self.axes[n], self.samples) for n in names]
+            combos = zip(*draws) if draws else ([] for _ in range(self.samples))
+        out = []
+        for combo in combos:
+            values = dict(base)
+            for n, v in zip(names, combo):
+                values.update(v if n == VARIANT else {n: v})
+            out.append(Scenario(**values))
+        return out
+
+
+def _draw(rng: np.random.Generator, axis: dict, count: int) -> list:
+    kind, arg = axis['kind'], axis['arg']
+    if kind == 'choice':
+        return [arg[i] for i in rng.integers(0, len(arg), count)]
+    lo, hi = (np.asarray(v, dtype=float) for v in arg)
+    u = rng.random((count, *lo.shape))
+    x = lo + (hi - lo) * u if kind == 'uniform' else np.exp(
+        np.log(lo) + (np.log(hi) - np.log(lo)) * u)
+    return [v.tolist() if lo.ndim else float(v) for v in x]
+
+
+_TOP = {'name': 'short name (used in titles)', 'question': 'the question the sweep answers',
+        'sweep': 'grid (every combination of the axes) | random (samples draws)',
+        'samples': 'random: number of scenarios', 'seed': 'random: seed (default 0)',
+        'scenario': 'fixed settings (the defaults below otherwise)',
+        'axes': 'varied settings', 'plot': '{x: COLUMN, y: [COLUMN...], by: COLUMN}'}
+
+
+def _known(what: str, key: object, known: Sequence[str] | dict) -> None:
+    if key not in known:
+        raise SpecError(f"{what}key {key!r} unknown (known: {', '.join(known)})")
+
+
+def _check_setting(where: str, name: str, value: object) -> Any:
+    try:
+        return check_setting(name, value)
+    except ValueError as exc:
+        raise SpecError(f'{where}: {exc}') from None
+
+
+def _variants(kind: str, value: object, taken: set[str]) -> Any:
+    """The ``variant`` axis: a list of mappings of settings, each one value of the axis
+    (e.g. a law with its own gains)."""
+    where = f'axes.{VARIANT}'
+    if not isinstance(value, list) or not value:
+        raise SpecError(f'{where}: must be a non-empty list of mappings of settings (e.g. '
+                        f'{{law: pd, kp: [600, 300]}}), got {value!r}')
+    out = []
+    for i, v in enumerate(value):
+        if not isinstance(v, dict) or not v:
+            raise SpecError(f'{where}[{i}]: must be a mapping of settings, got {v!r}')
+        for key in v:
+            _known(f'{where}[{i}]: ', key, SETTINGS)
+            if key in taken:
+                raise SpecError(f'{where}[{i}]: {key!r} is also in scenario or axes; give '
+                                'it once')
+        out.append({k: _check_setting(f'{where}[{i}].{k}', k, x) for k, x in v.items()})
+    return out if kind == 'grid' else {'kind': 'choice', 'arg': out}
+
+
+def _axis(kind: str, name: str, value: object) -> Any:
+    """A grid axis as its list of values, or a random axis as {'kind', 'arg'}."""
+    where = f'axes.{name}'
+    if isinstance(value, dict):
+        if len(value) != 1:
+            raise SpecError(f'{where}: give one of linspace, logspace, uniform, loguniform '
+                            f'(or a list of values), got {sorted(value)}')
+        (op, arg), = value.items()
+        ops = ('linspace', 'logspace') if kind == 'grid' else ('uniform', 'loguniform')
+        _known(f'{where}: ', op, ops)
+        if op in ('linspace', 'logspace'):
+            if not (isinstance(arg, list) and len(arg) == 3 and isinstance(arg[2], int)
+                    and not isinstance(arg[2], bool) and arg[2] >= 1):
+                raise SpecError(f'{where}: {op} takes [first, last, count >= 1], got {arg!r}')
+            lo, hi = (_check_setting(where, name, v) for v in arg[:2])
+            if isinstance(lo, str):
+                raise SpecError(f'{where}: {op} needs numbers, got {arg!r}')
+            if op == 'logspace' and not (np.asarray(lo) > 0).all() & (np.asarray(hi) > 0).all():
+                raise SpecError(f'{where}: logspace needs first and last > 0, got {arg!r}')
+            fn = np.linspace if op == 'linspace' else np.geomspace
+            values = [v.tolist() for v in fn(np.asarray(lo), np.asarray(hi), arg[2])]
+        else:
+            if not (isinstance(arg, list) and len(arg) == 2):
+                raise SpecError(f'{where}: {op} takes [low, high], got {arg!r}')
+            lo, hi = (_check_setting(where, name, v) for v in arg)
+            if op == 'loguniform' and not (np.asarray(lo) > 0).all():
+                raise SpecError(f'{where}: loguniform needs low > 0, got {arg!r}')
+            if not (np.asarray(lo) <= np.asarray(hi)).all():
+                raise SpecError(f'{where}: {op} needs low <= high, got {arg!r}')
+            return {'kind': op, 'arg': (lo, hi)}
+    elif isinstance(value, list):
+        values = value
+    else:
+        raise SpecError(f'{where}: must be a list of values or '
+                        f"{'{linspace: [a, b, n]}' if kind == 'grid' else '{uniform: [a, b]}'}"
+                        f', got {value!r}')
+    if not values:
+        raise SpecError(f'{where}: no values (an empty axis makes no scenario)')
+    checked = [_check_setting(where, name, v) for v in values]
+    return checked if kind == 'grid' else {'kind': 'choice', 'arg': checked}
+
+
+def parse_spec(doc: object, name: str = 'sweep') -> Spec:
+    """Validate a spec document (the YAML's content); raises :class:`SpecError`."""
+    if not isinstance(doc, dict):
+        raise SpecError(f'a spec is a mapping with keys {", ".join(_TOP)}, got '
+                        f'{type(doc).__name__}')
+    for key in doc:
+        _known('', key, _TOP)
+    kind = doc.get('sweep', 'grid')
+    if kind not in ('grid', 'random'):
+        raise SpecError(f"sweep must be grid or random, got {kind!r}")
+    samples, seed = doc.get('samples', 0), doc.get('seed', 0)
+    for key, value, lo in (('samples', samples, 1 if kind == 'random' else 0),
+                           ('seed', seed, 0)):
+        if isinstance(value, bool) or not isinstance(value, int) or not (
+                lo <= value <= MAX_SCENARIOS):
+            raise SpecError(f'{key} must be an integer in [{lo}, {MAX_SCENARIOS}], got '
+                            f'{value!r}')
+    if kind == 'grid' and 'samples' in doc:
+        raise SpecError('samples is for sweep: random (a grid runs every combination)')
+    scenario, axes = doc.get('scenario') or {}, doc.get('axes') or {}
+    for key, value in (('scenario', scenario), ('axes', axes)):
+        if not isinstance(value, dict):
+            raise SpecError(f'{key} must be a mapping of settings, got {value!r}')
+    for key in scenario:
+        _known('', key, SETTINGS)
+    for key in axes:
+        _known('axes: ', key, (*SETTINGS, VARIANT))
+    both = sorted(set(scenario) & set(axes))
+    if both:
+        raise SpecError(f'{both[0]!r} is both in scenario and in axes; give it once')
+    fixed = {k: _check_setting(f'scenario.{k}', k, v) for k, v in scenario.items()}
+    taken = set(scenario) | set(axes)
+    parsed = {k: (_variants(kind, v, taken) if k == VARIANT else _axis(kind, k, v))
+              for k, v in axes.items()}
+    if kind == 'grid':
+        total = math.prod(len(v) for v in parsed.values())
+        if total > MAX_SCENARIOS:
+            raise SpecError(f'the grid has {total} scenarios, more than {MAX_SCENARIOS}')
+    spec = Spec(name=str(doc.get('name', name)), question=str(doc.get('question', '')),
+                kind=kind, scenario=fixed, axes=parsed, samples=samples, seed=seed,
+                plot=_plot_spec(doc.get('plot'), parsed))
+    return spec
+
+
+def _plot_spec(value: object, axes: dict) -> PlotSpec | None:
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise SpecError(f'plot must be a mapping {{x, y, by}}, got {value!r}')
+    for key in value:
+        _known('plot: ', key, ('x', 'y', 'by'))
+    y = value.get('y', [])
+    y = [y] if isinstance(y, str) else y
+    cols = [value.get('x'), *y] + ([value['by']] if value.get('by') is not None else [])
+    for c in cols:
+        _known('plot: column ', c, COLUMNS)
+    if not y:
+        raise SpecError('plot: y must name at least one column')
+    return PlotSpec(x=str(value['x']), y=tuple(y), by=value.get('by'))
+
+
+def load_spec(path: str | Path) -> Spec:
+    """Read and validate a YAML spec; raises :class:`SpecError` (also for an unreadable
+    file or bad YAML)."""
+    import yaml
+
+    try:
+        text = Path(path).read_text()
+    except OSError as exc:
+        raise SpecError(f'cannot read it: {exc.strerror or exc}') from None
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        first = str(exc).strip().splitlines()
+        raise SpecError(f"not YAML: {' '.join(s.strip() for s in first)}") from None
+    return parse_spec(doc, Path(path).stem)
+
+
+def shipped_specs() -> dict[str, Path]:
+    """The specs shipped in ``config/sweeps/`` (installed in share/arm_sim/config/sweeps)."""
+    from arm_sim.launcher import config_file
+
+    folder = config_file().parent / 'sweeps'
+    return {p.stem: p for p in sorted(folder.glob('*.yaml'))}
+
+
+def resolve_spec(arg: str) -> Path:
+    """A spec file path, or the name of a shipped spec."""
+    p = Path(arg)
+    if p.exists() or p.suffix:
+        return p
+    return shipped_specs().get(arg, p)
