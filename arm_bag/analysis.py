@@ -68,8 +68,8 @@ import numpy as np
 
 from arm_bag import metrics
 from arm_bag.reader import BagData, JointStates, PathMsg, read_bag
-from arm_dynamics import TwoLinkArm
-from arm_dynamics.robot import ROBOT_DEFAULTS
+from arm_dynamics.models import RobotModel, joint_count, robot_model
+from arm_dynamics.robot import ROBOT_DEFAULTS, resolve_robot
 
 PATH_LEAD = 1_000_000_000  # ns: a path may arrive up to 1 s before its trajectory
 
@@ -178,6 +178,26 @@ def _robot(bag: BagData, warnings: list[str], joints: int) -> tuple[str, list, l
     return source, lengths, limits
 
 
+def _kinematics(bag: BagData, lengths: list, joints: int, warnings: list[str]
+                ) -> RobotModel | None:
+    """The arm whose forward kinematics give the end-effector metrics: the bag's robot
+    model (``arm_sim_robot``'s ``model``; older bags and none: two_link) with its link
+    lengths, or None (warned) when it does not have the bag's joint count."""
+    kind = (bag.robot or {}).get('model', 'two_link')
+    try:
+        robot = resolve_robot({'model': kind, 'link_lengths': lengths})
+        if joint_count(robot) == joints:
+            return robot_model(robot)
+    except ValueError:
+        pass
+    if kind in ('two_link', 'single_link_geared'):
+        warnings.append(f'{joints} joints: no end-effector metrics (the 2-R model needs 2)')
+    else:
+        warnings.append(f'{joints} joints: no end-effector metrics (model {kind!r} with '
+                        f'link lengths {lengths} does not describe them)')
+    return None
+
+
 def _unique_states(js: JointStates) -> JointStates:
     """``js`` without the states that repeat the previous one's stamp (re-sent states)."""
     if len(js) < 2:
@@ -209,9 +229,7 @@ def analyze_data(bag: BagData) -> Report:
                                + (', '.join(sorted(bag.topics)) or 'none') + ')')
     joints = len(js.names)
     source, lengths, limits = _robot(bag, warnings, joints)
-    arm = TwoLinkArm(link_lengths=tuple(lengths)) if joints == 2 else None
-    if arm is None:
-        warnings.append(f'{joints} joints: no end-effector metrics (the 2-R model needs 2)')
+    arm = _kinematics(bag, lengths, joints, warnings)
     t_ns = _times(js, warnings)
     t = (t_ns - t_ns[0]) * 1e-9
     ref = _reference(bag, js, warnings)

@@ -74,6 +74,7 @@ from arm_common.node import (
     steady_clock,
 )
 from arm_common.params import ParamSpec
+from arm_dynamics.models import joint_count
 from arm_dynamics.robot import ROBOT_PARAMS
 
 InvalidHandle = _rclpy.InvalidHandle
@@ -198,7 +199,7 @@ class RecorderNode(Node):
 
     def __init__(self) -> None:
         super().__init__('recorder', cli_args=clock_in_namespace())
-        p = declare_parameters(self, ROBOT_PARAMS + RECORDER_PARAMS)
+        p = declare_parameters(self, ROBOT_PARAMS + RECORDER_PARAMS, joints=joint_count)
         out = Path(p['output']).expanduser()
         if out.exists():
             raise ConfigError(f'output {str(out)!r} already exists; refusing to overwrite it')

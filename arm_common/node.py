@@ -31,7 +31,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from arm_common.params import ParamSpec, command_line_parameters
+from arm_common.params import ParamSpec, command_line_parameters, per_joint_defaults
 from arm_common.process import watch_parent
 from arm_common.throttle import Throttle
 
@@ -73,7 +73,9 @@ def latched_qos() -> QoSProfile:
                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-def declare_parameters(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]:
+def declare_parameters(node: Node, specs: Iterable[ParamSpec],
+                       joints: Callable[[dict[str, Any]], int] | None = None
+                       ) -> dict[str, Any]:
     """Declare ``specs`` on ``node`` and return their values; raise :class:`ConfigError`
     listing every refused value.
 
@@ -82,6 +84,11 @@ def declare_parameters(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]
     given for doubles taken as doubles, and an empty list (which a params file loads as
     unset) as the empty default. Numeric parameters carry their range
     (``FloatingPointRange`` / ``IntegerRange``) for ``ros2 param describe``.
+
+    ``joints`` (the start-up values by name -> the robot's joint count, raising ValueError
+    with the reason) sizes the per-joint parameters (:func:`per_joint_defaults`): those not
+    given are declared with their default for that many joints, so parameter tools show
+    the values the node uses.
     """
     specs = tuple(specs)
     # rclpy keeps the start-up values (params files, then -p) in this dict and reads it in
@@ -100,16 +107,25 @@ def declare_parameters(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]
         if name not in own and node.has_parameter(name) and (
                 node.get_parameter(name).value != value):
             node.set_parameters([Parameter(name, value=value)])
-    values, reasons = {}, []
-    for spec in specs:
-        reason = spec.check(overrides[spec.name].value) if spec.name in overrides else None
-        if reason:  # refused before rclpy's own range check can raise on it
-            reasons.append(reason)
-            continue
-        value = node.declare_parameter(spec.name, spec.default, descriptor(spec)).value
-        values[spec.name] = spec.as_declared(value)
+    given = {spec.name: overrides[spec.name].value for spec in specs
+             if spec.name in overrides}
+    # Refused before rclpy's own range check can raise on them.
+    reasons = [r for r in (spec.check(given[spec.name]) for spec in specs
+                           if spec.name in given) if r]
+    defaults = {spec.name: spec.default for spec in specs}
+    if not reasons and joints is not None:
+        try:
+            n = joints({**defaults, **given})
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        defaults, reasons = per_joint_defaults(specs, given, n)
     if reasons:
         raise ConfigError('; '.join(reasons))
+    values = {}
+    for spec in specs:
+        value = node.declare_parameter(spec.name, defaults[spec.name],
+                                       descriptor(spec)).value
+        values[spec.name] = spec.as_declared(value)
     return values
 
 

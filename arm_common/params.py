@@ -38,6 +38,13 @@ class ParamSpec:
     read_only: bool = False
     hints: tuple[tuple[str, str], ...] = ()  # (refused value, the reason given for it)
     allow_inf: bool = False
+    #: One value per joint of the robot (the model sets how many): not given, the default
+    #: for ``n`` joints is :meth:`default_for`; given, it must have ``n`` values (an empty
+    #: default, as the controller's ``model.*``, also accepts an empty list: "unset").
+    per_joint: bool = False
+    #: What :meth:`default_for` puts on joints beyond the default's length: a value, or a
+    #: function of the 0-based joint index; None repeats the default's last value.
+    fill: Any = None
 
     def doc(self) -> str:
         """The description with unit, range and mutability, as shown by parameter tools."""
@@ -52,6 +59,8 @@ class ParamSpec:
             parts.append(f"range {'(' if self.strict_min else '['}{lo}, {hi}]")
         if self.length:
             parts.append(f'{self.length} values')
+        if self.per_joint:
+            parts.append('one value per joint')
         parts.append('read-only' if self.read_only else 'changeable at run time')
         return ' '.join(parts)
 
@@ -103,6 +112,26 @@ class ParamSpec:
             return f'{name} must be <= {self.maximum:g}{unit}, got {item!r}'
         return None
 
+    def default_for(self, n: int) -> Any:
+        """The default of a per-joint parameter for a robot of ``n`` joints: the default's
+        first ``n`` values, the joints beyond them taking :attr:`fill` (for two joints, the
+        default itself). An empty default stays empty ("unset")."""
+        default = list(self.default)
+        if not self.per_joint or not default or len(default) == n:
+            return default
+        extra = [self.fill(i) if callable(self.fill)
+                 else default[-1] if self.fill is None else self.fill
+                 for i in range(len(default), n)]
+        return (default + extra)[:n]
+
+    def joint_count_reason(self, value: Any, n: int) -> str | None:
+        """Why a given ``value`` of this per-joint parameter does not fit ``n`` joints, or
+        None (an empty value of a parameter whose default is empty means unset)."""
+        if not self.per_joint or len(value) == n or (not value and self.default == []):
+            return None
+        return (f'{self.name} has {len(value)} values but the robot has {n} joints '
+                f'(give {n} values, or leave it out for the default of each joint)')
+
     def as_declared(self, value: Any) -> Any:
         """``value`` with integers given for a double (or doubles) parameter made floats, as
         a user typing ``5`` or ``[200, 100]`` means them; anything else unchanged (a wrong
@@ -117,6 +146,22 @@ class ParamSpec:
                 and all(_is_int(v) or isinstance(v, float) for v in value)):
             return [float(v) for v in value]
         return value
+
+
+def per_joint_defaults(specs: Sequence[ParamSpec], given: dict[str, Any], n: int
+                       ) -> tuple[dict[str, Any], list[str]]:
+    """The defaults of ``specs`` for a robot of ``n`` joints, and why any ``given`` value
+    (name -> value, already :meth:`ParamSpec.check`-ed) of a per-joint parameter does not
+    fit ``n`` joints: the one place the rule "a per-joint parameter not given takes its
+    per-joint default for every joint; given with the wrong length, it is refused" lives."""
+    defaults, reasons = {}, []
+    for spec in specs:
+        defaults[spec.name] = spec.default_for(n) if spec.per_joint else spec.default
+        if spec.name in given:
+            reason = spec.joint_count_reason(given[spec.name], n)
+            if reason:
+                reasons.append(reason)
+    return defaults, reasons
 
 
 def _is_int(value: Any) -> bool:

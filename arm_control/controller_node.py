@@ -31,9 +31,10 @@ from arm_common.node import (
 )
 from arm_common.params import ParamSpec
 from arm_control.core import ControllerCore
-from arm_control.laws import LAWS, ControlLaw, Gains
+from arm_control.laws import GAINS, LAW_TABLE, LAWS, ControlLaw, Gains
 from arm_control.trajectory import StaleTrajectoryError, TrajectoryError, TrajectoryPoint
 from arm_dynamics.limits import JointLimits
+from arm_dynamics.models import joint_count, robot_model
 from arm_dynamics.robot import ROBOT_PARAMS
 from arm_dynamics.timing import answer_tag
 from arm_dynamics.two_link import TwoLinkArm
@@ -63,20 +64,16 @@ restarted controller holds where the arm is.
 
 EARLY_WAIT = 5.0  # s (wall): a trajectory received before any joint state waits this long
 MODEL_KEYS = tuple(k for k in TwoLinkArm.PARAMETERS if k != 'gravity')  # model.<key>
+# (every model of arm_dynamics.models takes these names)
 
 CONTROL_PARAMS: tuple[ParamSpec, ...] = (
-    ParamSpec('law', 'string', 'computed_torque', 'Control law', choices=LAWS),
-    ParamSpec('gains.kp', 'doubles', [100.0, 60.0],
-              'Proportional gains (computed_torque: 1/s^2, others N m/rad)', 'per joint',
-              minimum=0.0, maximum=1e6, length=2),
-    ParamSpec('gains.kd', 'doubles', [20.0, 12.0],
-              'Derivative gains (computed_torque: 1/s, others N m s/rad)', 'per joint',
-              minimum=0.0, maximum=1e6, length=2),
-    ParamSpec('gains.ki', 'doubles', [50.0, 30.0], 'Integral gains (pid)', 'N m/(rad s)',
-              minimum=0.0, maximum=1e6, length=2),
-    ParamSpec('gains.i_clamp', 'doubles', [20.0, 10.0],
-              'Bound on the integral term (pid anti-windup)', 'N m', minimum=0.0,
-              maximum=1e6, length=2),
+    ParamSpec('law', 'string', 'computed_torque', 'Control law: ' + '; '.join(
+        f'{law.name}: {law.formula}' for law in LAW_TABLE.values()), choices=LAWS),
+) + tuple(
+    ParamSpec(f'gains.{g.name}', 'doubles', list(g.default), g.description.capitalize(),
+              g.unit, minimum=0.0, maximum=1e6, per_joint=True)
+    for g in GAINS
+) + (
     ParamSpec('update_on', 'string', 'joint_states',
               'When to compute a command: on every new joint state (use with the '
               "simulator's lockstep mode) or on a timer at control_rate",
@@ -95,7 +92,7 @@ CONTROL_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec(f'model.{k}', 'doubles', [], f'Controller model {k.replace("_", " ")}; '
               'empty = the robot parameter (set to study model mismatch)',
               next(s.unit for s in ROBOT_PARAMS if s.name == k), minimum=0.0,
-              maximum=1e4, read_only=True)
+              maximum=1e4, read_only=True, per_joint=True)
     for k in MODEL_KEYS
 ) + (ParamSpec('model.gravity', 'double', -1.0, 'Controller model gravity; negative = the '
                'robot parameter', 'm/s^2', maximum=100.0, read_only=True),)
@@ -119,11 +116,12 @@ class ControllerNode(Node):
 
     def __init__(self) -> None:
         super().__init__('controller', cli_args=clock_in_namespace())
-        p = declare_parameters(self, ROBOT_PARAMS + CONTROL_PARAMS)
+        p = declare_parameters(self, ROBOT_PARAMS + CONTROL_PARAMS, joints=joint_count)
         model_args = {k: (p[f'model.{k}'] or p[k]) for k in MODEL_KEYS}
         model_args['gravity'] = p['gravity'] if p['model.gravity'] < 0 else p['model.gravity']
+        model_args['model'] = p['model']
         try:
-            model = TwoLinkArm.from_params(model_args)
+            model = robot_model(model_args)
             law = ControlLaw(p['law'], gains_from(p), model, tuple(p['effort_limits']))
             limits = JointLimits.from_params(p)
         except ValueError as exc:
@@ -165,6 +163,12 @@ class ControllerNode(Node):
     # ------------------------------------------------------------------ parameters
     def _validate_change(self, changed: dict) -> str | None:
         merged = {**self.params, **changed}
+        n = len(self.core.joint_names)
+        for spec in CONTROL_PARAMS:
+            reason = (spec.joint_count_reason(changed[spec.name], n)
+                      if spec.name in changed else None)
+            if reason:
+                return reason
         try:
             gains_from(merged)
         except ValueError as exc:

@@ -22,19 +22,46 @@ dynamics control); Lynch and Park, *Modern Robotics* (2017), §11.4.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from arm_dynamics._validate import finite_tuple
-from arm_dynamics.two_link import TwoLinkArm
+from arm_dynamics.models import RobotModel
 
-LAWS = ('pd', 'pd_gravity', 'computed_torque', 'pid')
+
+@dataclass(frozen=True)
+class GainSpec:
+    """One per-joint gain: its name (``gains.<name>`` on the controller), the default for
+    the 2-R arm's two joints (joints beyond take the last value), unit and meaning."""
+
+    name: str
+    default: tuple[float, ...]
+    unit: str
+    description: str
+
+
+#: The gains, one source for the controller's parameters, the sweep and the docs.
+#: PID's integral clamp must let the integral supply the whole gravity torque wherever the
+#: arm stops: at most 30.4 N m (shoulder) and 5.9 N m (elbow), with the default arm
+#: stretched horizontally. 40 / 10 N m cover that with a third to spare and stay below the
+#: effort limits (60 / 20 N m). (20 N m, the old shoulder clamp, is below the 20.66 N m the
+#: demo pose needs: PID then left 8.2e-3 rad there forever.)
+GAINS: tuple[GainSpec, ...] = (
+    GainSpec('kp', (100.0, 60.0), 'N m/rad; computed_torque: 1/s^2', 'proportional gain'),
+    GainSpec('kd', (20.0, 12.0), 'N m s/rad; computed_torque: 1/s', 'derivative gain'),
+    GainSpec('ki', (50.0, 30.0), 'N m/(rad s)', 'integral gain (pid)'),
+    GainSpec('i_clamp', (40.0, 10.0), 'N m',
+             'bound on the integral term (pid anti-windup); above the largest gravity '
+             'torque so the integral can hold any pose'),
+)
+_DEFAULTS = {g.name: g.default for g in GAINS}
 
 
 @dataclass(frozen=True)
 class Gains:
-    """Per-joint gains (n = 2).
+    """Per-joint gains, one value per joint (every gain the same length n).
 
     Parameters
     ----------
@@ -42,17 +69,94 @@ class Gains:
     kd : (n,) N m s/rad, >= 0 (for computed_torque: 1/s)
     ki : (n,) N m/(rad s), >= 0 (pid only)
     i_clamp : (n,) N m, >= 0 -- bound on the integral term's torque (pid only)
+
+    Defaults: :data:`GAINS` (for two joints).
     """
 
-    kp: tuple[float, ...] = (100.0, 60.0)
-    kd: tuple[float, ...] = (20.0, 12.0)
-    ki: tuple[float, ...] = (50.0, 30.0)
-    i_clamp: tuple[float, ...] = (20.0, 10.0)
+    kp: tuple[float, ...] = _DEFAULTS['kp']
+    kd: tuple[float, ...] = _DEFAULTS['kd']
+    ki: tuple[float, ...] = _DEFAULTS['ki']
+    i_clamp: tuple[float, ...] = _DEFAULTS['i_clamp']
 
     def __post_init__(self) -> None:
-        for name in ('kp', 'kd', 'ki', 'i_clamp'):
-            object.__setattr__(self, name, finite_tuple(name, getattr(self, name), 2,
-                                                        minimum=0.0))
+        n = len(self.kp) if hasattr(self.kp, '__len__') else 0
+        for g in GAINS:
+            object.__setattr__(self, g.name, finite_tuple(g.name, getattr(self, g.name), n,
+                                                          minimum=0.0))
+
+
+#: torque(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des, dt)
+#: -> (raw torque, new integral); see :func:`law_torque` for the arguments.
+TorqueFn = Callable[..., tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class Law:
+    """One control law: ``name`` (the ``law`` parameter's value), its formula, the gains
+    it reads, whether it needs the controller's model, and its torque function."""
+
+    name: str
+    formula: str
+    note: str
+    gains: tuple[str, ...]
+    uses_model: bool
+    torque: TorqueFn
+
+
+def _pd(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des, dt):
+    return kp * e + kd * ed, integral
+
+
+def _pd_gravity(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des, dt):
+    return kp * e + kd * ed + model.gravity_vector(q), integral
+
+
+def _computed_torque(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des,
+                     dt):
+    return model.inverse_dynamics(q, qd, qdd_des + kd * ed + kp * e), integral
+
+
+def _pid(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des, dt):
+    candidate = np.clip(integral + ki * e * dt, -i_clamp, i_clamp)
+    raw = kp * e + kd * ed + candidate
+    # Conditional integration: keep the old integral where the output saturates
+    # and the error would push it further out.
+    winding = (np.abs(raw) > limits) & (np.sign(raw) == np.sign(e))
+    integral = np.where(winding, integral, candidate)
+    return kp * e + kd * ed + integral, integral
+
+
+#: The laws by name: the controller's ``law`` choices, its help, the docs' law table and
+#: the sweep's ``law`` axis all come from here. To add a law, add an entry (and a test that
+#: states its behaviour): docs/architecture.md, "Add a control law".
+LAW_TABLE: dict[str, Law] = {law.name: law for law in (
+    Law('pd', "Kp e + Kd e'", 'independent joint PD; leaves the steady-state error of '
+        'Kp e = g(q)', ('kp', 'kd'), False, _pd),
+    Law('pd_gravity', "Kp e + Kd e' + g(q)", "PD with gravity from the controller's model",
+        ('kp', 'kd'), True, _pd_gravity),
+    Law('computed_torque', "D(q) (qdd_des + Kd e' + Kp e) + C q' + g + B q'",
+        "inverse dynamics: e'' + Kd e' + Kp e = 0 with an exact model", ('kp', 'kd'), True,
+        _computed_torque),
+    Law('pid', "Kp e + Ki int(e) + Kd e'", 'model-free; the integral clamped to i_clamp and '
+        'frozen while the output saturates', ('kp', 'kd', 'ki', 'i_clamp'), False, _pid),
+)}
+LAWS = tuple(LAW_TABLE)
+
+
+def laws_markdown() -> str:
+    """The docs' table of the laws (docs/nodes.md holds it verbatim; a test checks)."""
+    rows = ['| law | torque | what it is | gains |', '|---|---|---|---|']
+    rows += [f"| `{law.name}` | `{law.formula}` | {law.note} | "
+             f"{', '.join(f'`{g}`' for g in law.gains)} |" for law in LAW_TABLE.values()]
+    return '\n'.join(rows) + '\n'
+
+
+def gains_markdown() -> str:
+    """The docs' table of the gains (docs/nodes.md holds it verbatim; a test checks)."""
+    rows = ['| parameter | default (2-R) | unit | meaning |', '|---|---|---|---|']
+    rows += [f"| `gains.{g.name}` | `{list(g.default)}` | {g.unit} | {g.description} |"
+             for g in GAINS]
+    return '\n'.join(rows) + '\n'
 
 
 @dataclass(frozen=True)
@@ -79,20 +183,26 @@ class ControlLaw:
 
     law: str
     gains: Gains
-    model: TwoLinkArm
+    model: RobotModel
     effort_limits: tuple[float, ...]
-    integral: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    integral: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def __post_init__(self) -> None:
         if self.law not in LAWS:
             raise ValueError(f"law must be one of {', '.join(LAWS)}; got {self.law!r}")
-        self.effort_limits = finite_tuple('effort_limits', self.effort_limits, 2,
+        n = self.model.n_dof
+        self.effort_limits = finite_tuple('effort_limits', self.effort_limits, n,
                                           minimum=0.0, strict=True)
+        if len(self.gains.kp) != n:
+            raise ValueError(f'gains have {len(self.gains.kp)} values per gain but the '
+                             f'model has {n} joints')
         self._limits = np.array(self.effort_limits)
+        if np.shape(self.integral) != (n,):  # not given (or not for these joints): zero
+            self.integral = np.zeros(n)
 
     def reset(self) -> None:
         """Forget the integral."""
-        self.integral = np.zeros(2)
+        self.integral = np.zeros(len(self.effort_limits))
 
     def __call__(self, q: np.ndarray, qd: np.ndarray, q_des: np.ndarray,
                  qd_des: np.ndarray, qdd_des: np.ndarray, dt: float) -> Command:
@@ -114,13 +224,13 @@ def law_torque(law: str, kp: np.ndarray, kd: np.ndarray, ki: np.ndarray,
     """The unsaturated torque of ``law`` and the PID integral after this call.
 
     The formulas of :class:`ControlLaw` (which calls this), for one state or a batch:
-    every array is (2,) or (B, 2) (gains and limits broadcast), ``model`` a
-    :class:`~arm_dynamics.two_link.TwoLinkArm` or, for a batch with one model per row, a
+    every array is (n,) or (B, n) (gains and limits broadcast), ``model`` a
+    :class:`~arm_dynamics.models.RobotModel` or, for a batch with one model per row, a
     :class:`~arm_dynamics.two_link.TwoLinkBatch`.
 
     Parameters
     ----------
-    law : one of ``LAWS``
+    law : one of ``LAWS`` (:data:`LAW_TABLE`)
     kp, kd, ki, i_clamp : gains, units as in :class:`Gains`
     limits : N m, the effort limits (PID conditional integration)
     integral : N m, the PID integral term before this call (other laws: returned as is)
@@ -133,19 +243,9 @@ def law_torque(law: str, kp: np.ndarray, kd: np.ndarray, ki: np.ndarray,
     raw : N m, before saturation
     integral : N m, the new PID integral
     """
-    e, ed = q_des - q, qd_des - qd
-    if law == 'pd':
-        return kp * e + kd * ed, integral
-    if law == 'pd_gravity':
-        return kp * e + kd * ed + model.gravity_vector(q), integral
-    if law == 'computed_torque':
-        return model.inverse_dynamics(q, qd, qdd_des + kd * ed + kp * e), integral
-    if law != 'pid':
+    spec = LAW_TABLE.get(law)
+    if spec is None:
         raise ValueError(f"law must be one of {', '.join(LAWS)}; got {law!r}")
-    candidate = np.clip(integral + ki * e * dt, -i_clamp, i_clamp)
-    raw = kp * e + kd * ed + candidate
-    # Conditional integration: keep the old integral where the output saturates
-    # and the error would push it further out.
-    winding = (np.abs(raw) > limits) & (np.sign(raw) == np.sign(e))
-    integral = np.where(winding, integral, candidate)
-    return kp * e + kd * ed + integral, integral
+    e, ed = q_des - q, qd_des - qd
+    return spec.torque(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des,
+                       dt)

@@ -124,6 +124,16 @@ class SingleLinkGeared:
         return self.gear_ratio * (_arr('u', u) - self.motor_inertia * acc
                                   - self.motor_damping * thd)
 
+    def joint_view(self, joint_names, q, qd, u) -> tuple[tuple[str, str], list[float],
+                                                        list[float], list[float]]:
+        """How the simulator publishes this model: ``<joint>_motor`` (motor angle [rad],
+        speed [rad/s], applied motor torque u [N m]) and ``<joint>`` (link angle and speed =
+        motor's / n; effort = :meth:`link_torque` at this state, ``n u`` only at rest), with
+        ``<joint>`` the first of ``joint_names``; ``q``, ``qd``, ``u`` one-element lists."""
+        n, j = self.gear_ratio, joint_names[0]
+        link_tau = float(self.link_torque(q[0], qd[0], u[0]))
+        return (f'{j}_motor', j), [q[0], q[0] / n], [qd[0], qd[0] / n], [u[0], link_tau]
+
     def energy(self, theta_m, theta_m_dot) -> tuple[np.ndarray, np.ndarray]:
         """(kinetic, potential) energy [J]; potential is zero hanging straight down."""
         th, thd = _arr('theta_m', theta_m), _arr('theta_m_dot', theta_m_dot)

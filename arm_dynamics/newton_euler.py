@@ -99,6 +99,12 @@ class NewtonEulerChain:
         q = state_array('q', q, n)
         qd = state_array('qd', qd, n)
         qdd = state_array('qdd', qdd, n)
+        return self.unchecked(q, qd, qdd)
+
+    def unchecked(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """:meth:`inverse_dynamics` on arrays already validated; complex ``q`` is carried
+        through (for complex-step derivatives)."""
+        n = self.n_dof
         q, qd, qdd = np.broadcast_arrays(q, qd, qdd)
         zero = np.zeros(q.shape[:-1])
 

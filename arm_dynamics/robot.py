@@ -11,13 +11,14 @@ from __future__ import annotations
 
 from dataclasses import fields
 
-from arm_common.params import ParamSpec
+from arm_common.params import ParamSpec, per_joint_defaults
 from arm_dynamics.limits import (
     DEFAULT_EFFORT,
     DEFAULT_POSITION_LOWER,
     DEFAULT_POSITION_UPPER,
     DEFAULT_VELOCITY,
 )
+from arm_dynamics.models import MODELS, joint_count
 from arm_dynamics.two_link import TwoLinkArm
 
 #: Joint names, shoulder then elbow.
@@ -28,7 +29,7 @@ MODEL_DEFAULTS = {f.name: f.default for f in fields(TwoLinkArm) if f.init}
 
 
 def _pair(name: str, default: tuple, description: str, unit: str, **kw) -> ParamSpec:
-    return ParamSpec(name, 'doubles', list(default), description, unit, length=2,
+    return ParamSpec(name, 'doubles', list(default), description, unit, per_joint=True,
                      read_only=True, **kw)
 
 
@@ -39,10 +40,17 @@ def _model(name: str, description: str, unit: str, **kw) -> ParamSpec:
     return ParamSpec(name, 'double', default, description, unit, read_only=True, **kw)
 
 
-#: Robot description shared by every node; read-only.
+#: Robot description shared by every node; read-only. The per-joint ones have one value
+#: per joint of the model (:func:`~arm_dynamics.models.joint_count`); not given, the
+#: default for the first two joints, the last value repeated beyond (joint names
+#: ``joint<i>``).
 ROBOT_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec('model', 'string', 'two_link',
+              'Robot model: ' + '; '.join(f'{k.name}: {k.summary}' for k in MODELS.values()),
+              choices=tuple(MODELS), read_only=True),
     ParamSpec('joint_names', 'strings', list(JOINT_NAMES),
-              'Joint names, shoulder then elbow', length=2, read_only=True),
+              'Joint names, base to tip', per_joint=True, fill=lambda i: f'joint{i + 1}',
+              read_only=True),
     _model('link_lengths', 'Link lengths, joint axis to next axis / tip', 'm',
            minimum=0.0, strict_min=True, maximum=100.0),
     _model('com_distances', 'Joint axis to link centre of gravity', 'm',
@@ -69,3 +77,19 @@ ROBOT_PARAMS: tuple[ParamSpec, ...] = (
 
 #: The defaults by name, as a bag's ``arm_sim_robot`` record would hold them.
 ROBOT_DEFAULTS = {s.name: s.default for s in ROBOT_PARAMS}
+
+
+def resolve_robot(given: dict) -> dict:
+    """The robot parameters for ``given`` values (name -> value; others take their
+    defaults, per-joint ones sized to the model's joints): the pure twin of what every
+    node's start-up does. Raises ValueError naming each refused value."""
+    specs = {s.name: s for s in ROBOT_PARAMS}
+    unknown = sorted(set(given) - set(specs))
+    reasons = [f'unknown robot parameter {name!r}' for name in unknown]
+    reasons += [r for r in (specs[k].check(v) for k, v in given.items() if k in specs) if r]
+    if not reasons:
+        n = joint_count({**ROBOT_DEFAULTS, **given})
+        defaults, reasons = per_joint_defaults(ROBOT_PARAMS, given, n)
+    if reasons:
+        raise ValueError('; '.join(reasons))
+    return {**defaults, **{k: specs[k].as_declared(v) for k, v in given.items()}}

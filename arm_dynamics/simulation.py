@@ -17,10 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from arm_dynamics.geared_link import SingleLinkGeared
 from arm_dynamics.integrate import Model
 from arm_dynamics.limits import JointLimits
-from arm_dynamics.two_link import TwoLinkArm
+from arm_dynamics.models import geared_link, robot_model
 
 
 class CommandError(ValueError):
@@ -54,7 +53,7 @@ class SimulatorCore:
 
     Parameters
     ----------
-    model : TwoLinkArm or SingleLinkGeared
+    model : a :class:`~arm_dynamics.models.RobotModel` or the geared link
     q0, qd0 : (n,) rad, rad/s -- initial (and reset) state.
     effort_limits : (n,) N m, > 0 -- the applied torque is clipped to +-limits.
     physics_step_ns : int, ns > 0 -- RK4 step.
@@ -164,30 +163,21 @@ class SimulatorCore:
         return self.joint_limits.violation(self.q, self.qd)
 
     def joint_view(self) -> JointView:
-        """Positions [rad], velocities [rad/s] and applied efforts [N m] to publish.
-
-        The geared link shows the motor shaft (``<joint>_motor``: angle, speed, applied
-        motor torque u) and the link (``<joint>``: motor angle and speed divided by the
-        gear ratio; effort = the torque the gear applies to the link at this state under
-        u, :meth:`SingleLinkGeared.link_torque`, which is ``n u`` only at rest).
-        """
+        """Positions [rad], velocities [rad/s] and applied efforts [N m] to publish: the
+        model's own view of its state when it has one (:meth:`SingleLinkGeared.joint_view`
+        shows motor shaft and link), else one entry per joint."""
         q, qd, tau = self.q.tolist(), self.qd.tolist(), self.applied.tolist()
-        if isinstance(self.model, SingleLinkGeared):
-            n = self.model.gear_ratio
-            j = self.joint_names[0]
-            link_tau = float(self.model.link_torque(q[0], qd[0], tau[0]))
-            return JointView((f'{j}_motor', j), [q[0], q[0] / n], [qd[0], qd[0] / n],
-                             [tau[0], link_tau])
+        view = getattr(self.model, 'joint_view', None)
+        if view is not None:
+            return JointView(*view(self.joint_names, q, qd, tau))
         return JointView(self.joint_names[: self.n], q, qd, tau)
 
 
-def make_model(kind: str, robot: dict, geared: dict) -> Model:
-    """Build the simulated model from node parameters (``two_link`` or ``single_link_geared``).
-
-    Raises ValueError naming the parameter if the physics refuses it.
+def make_model(robot: dict, geared: dict) -> Model:
+    """Build the simulated model from node parameters: the robot's ``model`` through
+    :func:`~arm_dynamics.models.robot_model`, except ``single_link_geared``, simulated from
+    the ``geared.*`` parameters. Raises ValueError naming the parameter the physics refuses.
     """
-    if kind == 'two_link':
-        return TwoLinkArm.from_params(robot)
-    if kind == 'single_link_geared':
-        return SingleLinkGeared(**geared)
-    raise ValueError(f"model must be 'two_link' or 'single_link_geared', got {kind!r}")
+    if robot.get('model') == 'single_link_geared':
+        return geared_link(geared)
+    return robot_model(robot)

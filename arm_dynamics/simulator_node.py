@@ -30,6 +30,7 @@ from arm_common.node import (
 )
 from arm_common.params import ParamSpec
 from arm_dynamics.limits import JointLimits
+from arm_dynamics.models import joint_count
 from arm_dynamics.robot import ROBOT_PARAMS
 from arm_dynamics.simulation import CommandError, SimulatorCore, make_model, validate_command
 from arm_dynamics.timing import (
@@ -47,7 +48,8 @@ from arm_dynamics.timing import (
 HOLD_LEASE = 30.0  # s (wall): a hold nobody released in this long is released (reported)
 
 SUMMARY = '''
-Simulates the 2-R arm (or the geared single link) and publishes joint_states
+Simulates the robot model (the 2-R arm, a planar n-link chain or the geared single link)
+and publishes joint_states
 (sensor_msgs/JointState: position rad, velocity rad/s, applied effort N m, stamped in
 simulated time) and clock (rosgraph_msgs/Clock); takes effort_controller/commands
 (std_msgs/Float64MultiArray, N m per joint, saturated at effort_limits). Service ~/reset
@@ -68,8 +70,6 @@ Simulated time is the only time that changes the physics.
 '''
 
 SIM_PARAMS: tuple[ParamSpec, ...] = (
-    ParamSpec('model', 'string', 'two_link', 'Simulated model',
-              choices=('two_link', 'single_link_geared'), read_only=True),
     ParamSpec('physics_step', 'double', 0.001, 'Fixed RK4 integration step', 's',
               minimum=1e-6, maximum=0.1, read_only=True),
     ParamSpec('publish_rate', 'double', 100.0,
@@ -79,10 +79,10 @@ SIM_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('initial_positions', 'doubles', [-0.4, 1.2],
               'Initial and reset joint positions (single_link_geared: first value = link '
               'angle from hanging down); applied at start and on reset', 'rad',
-              minimum=-100.0, maximum=100.0),
+              minimum=-100.0, maximum=100.0, per_joint=True, fill=0.0),
     ParamSpec('initial_velocities', 'doubles', [0.0, 0.0],
               'Initial and reset joint velocities (single_link_geared: first value = link '
-              'speed)', 'rad/s', minimum=-1000.0, maximum=1000.0),
+              'speed)', 'rad/s', minimum=-1000.0, maximum=1000.0, per_joint=True, fill=0.0),
     ParamSpec('command_timeout', 'double', 0.5,
               'Wall-clock time without a valid command that is reported (a WARN with the '
               'time waited); time keeps standing still until the answer comes. wall_clock '
@@ -149,7 +149,7 @@ class SimulatorNode(Node):
 
     def __init__(self) -> None:
         super().__init__('simulator', cli_args=clock_in_namespace())
-        p = declare_parameters(self, ROBOT_PARAMS + SIM_PARAMS)
+        p = declare_parameters(self, ROBOT_PARAMS + SIM_PARAMS, joints=joint_count)
         robot = {s.name: p[s.name] for s in ROBOT_PARAMS}
         step_ns, period_ns = _ns(p['physics_step']), _ns(1.0 / p['publish_rate'])
         if period_ns % step_ns:
@@ -160,16 +160,17 @@ class SimulatorNode(Node):
                   if k.startswith('geared.') and k != 'geared.effort_limit'}
         geared['gravity'] = robot['gravity']
         try:
-            model = make_model(p['model'], robot, geared)
+            model = make_model(robot, geared)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
         self.params = p
         self.n = model.n_dof
-        limits = ([p['geared.effort_limit']] if self.n == 1 else robot['effort_limits'])
+        self.geared = p['model'] == 'single_link_geared'
+        limits = [p['geared.effort_limit']] if self.geared else robot['effort_limits']
         q0, qd0 = self._initial_state(model, p['initial_positions'],
                                       p['initial_velocities'])
         joint_limits = envelope = None
-        if self.n == 2:  # the geared link's motor shaft has no joint limits of its own
+        if not self.geared:  # the geared link's motor shaft has no joint limits of its own
             try:
                 joint_limits = JointLimits.from_params(robot)
             except ValueError as exc:
@@ -218,19 +219,18 @@ class SimulatorNode(Node):
 
     # ------------------------------------------------------------------ parameters
     def _initial_state(self, model, positions, velocities):
-        if self.n == 1:
+        if self.geared:
             n = model.gear_ratio
             return [positions[0] * n], [velocities[0] * n]
-        if len(positions) != 2 or len(velocities) != 2:
-            raise ConfigError('initial_positions and initial_velocities need 2 values each, '
-                              f'got {list(positions)} and {list(velocities)}')
-        return positions, velocities
+        return positions, velocities  # one per joint: declare_parameters sized them
 
     def _validate_change(self, changed: dict) -> str | None:
+        joints = len(self.params['joint_names'])
         for key in ('initial_positions', 'initial_velocities'):
             values = changed.get(key)
-            if values is not None and not (len(values) == 2 or self.n == 1 and values):
-                return f'{key} needs {max(self.n, 2)} values, got {list(values)}'
+            if values is not None and not (len(values) == joints or self.geared and values):
+                return (f'{key} has {len(values)} values but the robot has {joints} joints '
+                        f'(got {list(values)})')
         q0 = changed.get('initial_positions')
         if q0 is not None and self.core.envelope is not None:
             outside = self.core.envelope.position_violation(q0, 'initial position')

@@ -50,7 +50,7 @@ Siciliano et al. §2.9, §3.1.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -377,7 +377,7 @@ class TwoLinkArm:
                   'joint_damping')
 
     @classmethod
-    def from_params(cls, params: dict) -> TwoLinkArm:
+    def from_params(cls, params: Mapping[str, Any]) -> TwoLinkArm:
         """The arm from robot parameters by name (missing ones take the defaults, other
         keys are ignored): one construction for simulator, controller and planner."""
         return cls(**{k: params[k] for k in cls.PARAMETERS if k in params})
@@ -555,6 +555,16 @@ class TwoLinkArm:
         return np.stack([l1 * np.cos(q[..., 0]) + l2 * np.cos(q12),
                          l1 * np.sin(q[..., 0]) + l2 * np.sin(q12)], -1)
 
+    def joint_points(self, q) -> np.ndarray:
+        """Base, elbow and tip [m] at ``q`` (2,) or (..., 2) [rad]: (3, 2) or (..., 3, 2),
+        for drawing (the elbow ``(l1 cos q1, l1 sin q1)``, the tip
+        :meth:`forward_kinematics`)."""
+        q = state_array('q', q, 2)
+        l1 = self.link_lengths[0]
+        elbow = np.stack([l1 * np.cos(q[..., 0]), l1 * np.sin(q[..., 0])], -1)
+        tip = self.forward_kinematics(q)
+        return np.stack([np.zeros_like(tip), elbow, tip], -2)
+
     def jacobian(self, q) -> np.ndarray:
         """``J(q) = dp/dq``, so that the tip velocity is ``p' = J q'``.
 
@@ -694,6 +704,66 @@ class TwoLinkArm:
                     f'singularity_margin {singularity_margin:g} (r = {r:.4f} m; arm almost '
                     f"{'stretched' if self.cos_q2(r) > 0 else 'folded'})")
         return None
+
+    # ------------------------------------------------------------------ model variants
+    def with_payload(self, mass: float) -> TwoLinkArm:
+        """This arm carrying a point mass at the tip of link 2 (e.g. an unmodelled payload).
+
+        Parameters
+        ----------
+        mass : kg, finite, >= 0
+            The point mass ``p``, at distance ``l2`` from the elbow on link 2's axis.
+
+        Returns
+        -------
+        TwoLinkArm
+            Link 2 becomes the rigid body of the link and the point mass, everything else
+            unchanged: mass ``m2 + p``, centre of gravity
+            ``lc2' = (m2 lc2 + p l2) / (m2 + p)``, inertia about it (parallel axis
+            theorem) ``I2' = I2 + m2 (lc2' - lc2)^2 + p (l2 - lc2')^2``. Its dynamics are
+            this arm's plus the point mass's (``D' = D + p J^T J``, ``g' = g + p g0
+            dy_tip/dq``, ``J`` :meth:`jacobian`). ``mass == 0`` returns this arm itself.
+        """
+        p = finite_scalar('mass', mass, minimum=0.0)
+        if p == 0.0:
+            return self
+        (_, l2), (lc1, lc2) = self.link_lengths, self.com_distances
+        (m1, m2), (i1, i2) = self.link_masses, self.link_inertias
+        c = (m2 * lc2 + p * l2) / (m2 + p)
+        return type(self)(link_lengths=self.link_lengths, com_distances=(lc1, c),
+                          link_masses=(m1, m2 + p),
+                          link_inertias=(i1, i2 + m2 * (c - lc2) ** 2 + p * (l2 - c) ** 2),
+                          gravity=self.gravity, joint_damping=self.joint_damping)
+
+    def with_errors(self, mass_error: float, length_error: float) -> TwoLinkArm:
+        """This arm with relative parameter errors, e.g. a controller's imperfect model.
+
+        Parameters
+        ----------
+        mass_error : [-], finite, > -1
+            ``e_m``: link masses ``m_i (1 + e_m)``.
+        length_error : [-], finite, > -1
+            ``e_l``: link lengths ``l_i (1 + e_l)`` and centre of gravity distances
+            ``lc_i (1 + e_l)``.
+
+        Returns
+        -------
+        TwoLinkArm
+            Inertias ``I_i (1 + e_m) (1 + e_l)^2`` (each link scaled as a body: mass times
+            length squared), gravity and joint damping unchanged; so ``D(q)`` scales by
+            ``(1 + e_m) (1 + e_l)^2`` and ``g(q)`` by ``(1 + e_m) (1 + e_l)``. Where both
+            factors are exactly 1 this arm itself.
+        """
+        m = 1.0 + finite_scalar('mass_error', mass_error, minimum=-1.0, strict=True)
+        s = 1.0 + finite_scalar('length_error', length_error, minimum=-1.0, strict=True)
+        if m == 1.0 and s == 1.0:
+            return self
+        (l1, l2), (c1, c2) = self.link_lengths, self.com_distances
+        (m1, m2), (i1, i2) = self.link_masses, self.link_inertias
+        return type(self)(link_lengths=(s * l1, s * l2), com_distances=(s * c1, s * c2),
+                          link_masses=(m * m1, m * m2),
+                          link_inertias=(m * s * s * i1, m * s * s * i2),
+                          gravity=self.gravity, joint_damping=self.joint_damping)
 
 
 class TwoLinkBatch:

@@ -1,4 +1,5 @@
-"""A URDF of the two-link arm, generated from the robot parameters (no rclpy).
+"""A URDF of the arm (the 2-R arm or any planar chain), generated from the robot parameters
+(no rclpy).
 
 The model a viewer shows is the model the simulator integrates: every number comes from
 the same parameters (:data:`arm_dynamics.robot.ROBOT_PARAMS`) through the same
@@ -12,6 +13,9 @@ plane of ``base_link``, gravity along -y, angles counter-clockwise about +z::
     base_link --joint1 (revolute, z, at the origin)--> link1
     link1     --joint2 (revolute, z, at (l1, 0, 0))--> link2
     link2     --tool0_joint (fixed, at (l2, 0, 0))---> tool0
+
+(a planar chain of n links continues the same way: ``link<i>`` --``joint<i+1>`` at
+``(l_i, 0, 0)``--> ``link<i+1>``, and ``tool0`` at ``(l_n, 0, 0)`` of ``link<n>``)
 
 Each link frame has its x axis along the link, so ``q1`` is link 1's angle from +x and
 ``q2`` link 2's angle relative to link 1, and the origin of ``tool0`` is the tip of
@@ -47,18 +51,24 @@ from dataclasses import dataclass
 from typing import Any
 
 from arm_dynamics.limits import JointLimits
-from arm_dynamics.robot import JOINT_NAMES, ROBOT_DEFAULTS, ROBOT_PARAMS
-from arm_dynamics.two_link import TwoLinkArm
+from arm_dynamics.models import RobotModel, robot_model
+from arm_dynamics.robot import JOINT_NAMES, ROBOT_PARAMS, resolve_robot
 
 #: kg m^2: the inertia of each link about its own (x) axis, and what is added to ``iyy``:
 #: small and positive, so the inertia tensor is valid for any planar inertia ``I >= 0``.
 AXIAL_INERTIA = 1e-6
 #: rad/s: what an infinite ``velocity_limits`` entry becomes (URDF requires a number).
 UNLIMITED_VELOCITY = sys.float_info.max
-#: Frame names: the root, the two links and the tip.
+#: Frame names: the root, the links (``link<i>``, i = 1..n; the 2-R arm's two below) and
+#: the tip.
 BASE_FRAME = 'base_link'
 LINK_FRAMES = ('link1', 'link2')
 TIP_FRAME = 'tool0'
+
+
+def link_frames(n: int) -> tuple[str, ...]:
+    """The link frames of an n-joint arm: ``link1`` .. ``link<n>``."""
+    return tuple(f'link{i + 1}' for i in range(n))
 #: RGBA colours of the visuals.
 COLOURS = {'base': (0.3, 0.3, 0.3, 1.0), 'link1': (0.2, 0.45, 0.8, 1.0),
            'link2': (0.95, 0.55, 0.1, 1.0), 'joint': (0.15, 0.15, 0.15, 1.0),
@@ -71,37 +81,39 @@ class RobotDescription:
 
     Parameters
     ----------
-    arm : TwoLinkArm
+    arm : a RobotModel of n joints (:mod:`arm_dynamics.models`)
         Lengths [m], CG distances [m], masses [kg], inertias about the CG [kg m^2],
         damping [N m s/rad] (gravity [m/s^2] is not part of a URDF).
     limits : JointLimits
         Position limits [rad] and speed limits [rad/s].
-    effort_limits : (2,) N m, each > 0
-    joint_names : (2,) str
-        Shoulder then elbow.
+    effort_limits : (n,) N m, each > 0
+    joint_names : (n,) str
+        Base to tip.
     name : str
         The ``<robot name>``.
     """
 
-    arm: TwoLinkArm
+    arm: RobotModel
     limits: JointLimits
-    effort_limits: tuple[float, float]
-    joint_names: tuple[str, str] = JOINT_NAMES
+    effort_limits: tuple[float, ...]
+    joint_names: tuple[str, ...] = JOINT_NAMES
     name: str = 'arm_sim_two_link'
 
     def __post_init__(self) -> None:
-        if len(self.limits.lower) != 2:
-            raise ValueError(f'limits must be for 2 joints, got {len(self.limits.lower)}')
+        n = self.arm.n_dof
+        count = 'two' if n == 2 else str(n)
+        if len(self.limits.lower) != n:
+            raise ValueError(f'limits must be for {n} joints, got {len(self.limits.lower)}')
         effort = tuple(float(e) for e in self.effort_limits)
-        if len(effort) != 2 or not all(math.isfinite(e) and e > 0 for e in effort):
-            raise ValueError(f'effort_limits must be two finite values > 0 N m, got '
+        if len(effort) != n or not all(math.isfinite(e) and e > 0 for e in effort):
+            raise ValueError(f'effort_limits must be {count} finite values > 0 N m, got '
                              f'{self.effort_limits!r}')
         names = tuple(self.joint_names)
-        taken = {BASE_FRAME, TIP_FRAME, 'tool0_joint', *LINK_FRAMES}
-        if (len(names) != 2 or not all(isinstance(n, str) and n for n in names)
-                or names[0] == names[1] or taken & set(names)):
-            raise ValueError(f'joint_names must be two different non-empty names, none of '
-                             f'{sorted(taken)}; got {self.joint_names!r}')
+        taken = {BASE_FRAME, TIP_FRAME, 'tool0_joint', *link_frames(n)}
+        if (len(names) != n or not all(isinstance(x, str) and x for x in names)
+                or len(set(names)) != n or taken & set(names)):
+            raise ValueError(f'joint_names must be {count} different non-empty names, none '
+                             f'of {sorted(taken)}; got {self.joint_names!r}')
         if not self.name:
             raise ValueError(f'name must not be empty, got {self.name!r}')
         object.__setattr__(self, 'effort_limits', effort)
@@ -109,9 +121,10 @@ class RobotDescription:
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any] | None = None,
-                    name: str = 'arm_sim_two_link') -> RobotDescription:
+                    name: str | None = None) -> RobotDescription:
         """From robot parameters by name (missing ones take the defaults of
-        :data:`~arm_dynamics.robot.ROBOT_DEFAULTS`).
+        :data:`~arm_dynamics.robot.ROBOT_DEFAULTS`, per-joint ones sized to the model; the
+        name defaults to ``arm_sim_<model>``).
 
         Raises
         ------
@@ -120,22 +133,15 @@ class RobotDescription:
             value).
         """
         given = dict(params or {})
-        specs = {s.name: s for s in ROBOT_PARAMS}
-        unknown = sorted(set(given) - set(specs))
+        unknown = sorted(set(given) - {s.name for s in ROBOT_PARAMS})
         if unknown:
             raise ValueError(f'unknown robot parameter(s) {unknown}; known: '
-                             f'{", ".join(specs)}')
-        values = dict(ROBOT_DEFAULTS)
-        for key, value in given.items():
-            value = specs[key].as_declared(value)
-            reason = specs[key].check(value)
-            if reason:
-                raise ValueError(reason)
-            values[key] = value
-        return cls(arm=TwoLinkArm.from_params(values), limits=JointLimits.from_params(values),
+                             f'{", ".join(s.name for s in ROBOT_PARAMS)}')
+        values = resolve_robot(given)
+        return cls(arm=robot_model(values), limits=JointLimits.from_params(values),
                    effort_limits=tuple(values['effort_limits']),
                    joint_names=tuple(values['joint_names']),
-                   name=name)
+                   name=name or f"arm_sim_{values['model']}")
 
     def to_urdf(self) -> str:
         """The URDF document (XML text with declaration, ending in a newline)."""
@@ -183,10 +189,11 @@ def robot_urdf(robot: RobotDescription) -> str:
     Returns
     -------
     str
-        XML text: ``base_link`` root, links ``link1``, ``link2``, ``tool0``, revolute (or
-        continuous) joints named ``robot.joint_names``, fixed ``tool0_joint``.
+        XML text: ``base_link`` root, links ``link1`` .. ``link<n>``, ``tool0``, revolute
+        (or continuous) joints named ``robot.joint_names``, fixed ``tool0_joint``.
     """
     arm, limits = robot.arm, robot.limits
+    frames = link_frames(arm.n_dof)
     lengths, cgs = arm.link_lengths, arm.com_distances
     reach = sum(lengths)
     radius = 0.02 * reach  # m: link cylinders; joint discs are twice as wide
@@ -198,11 +205,11 @@ def robot_urdf(robot: RobotDescription) -> str:
     _visual(base, 'base_plate', ('box', {'size': _size(4 * radius, 4 * radius, radius)}),
             (0.0, 0.0, -1.5 * radius), 'base')
 
-    for i, frame in enumerate(LINK_FRAMES):
+    for i, frame in enumerate(frames):
         length, cg = lengths[i], cgs[i]
         link = _sub(root, 'link', name=frame)
         _visual(link, f'{frame}_body', _cylinder(radius, length), (length / 2, 0.0, 0.0),
-                frame, rpy=(0.0, math.pi / 2, 0.0))
+                'link1' if i == 0 else 'link2', rpy=(0.0, math.pi / 2, 0.0))
         _visual(link, f'{frame}_joint_disc', _cylinder(2 * radius, 1.5 * radius),
                 (0.0, 0.0, 0.0), 'joint')
         inertial = _sub(link, 'inertial')
@@ -215,13 +222,13 @@ def robot_urdf(robot: RobotDescription) -> str:
     tip = _sub(root, 'link', name=TIP_FRAME)
     _visual(tip, 'tip', ('sphere', {'radius': _size(1.5 * radius)}), (0.0, 0.0, 0.0), 'tip')
 
-    parents = (BASE_FRAME, LINK_FRAMES[0])
-    origins = ((0.0, 0.0, 0.0), (lengths[0], 0.0, 0.0))
+    parents = (BASE_FRAME,) + frames[:-1]
+    origins = ((0.0, 0.0, 0.0),) + tuple((length, 0.0, 0.0) for length in lengths[:-1])
     for i, name in enumerate(robot.joint_names):
         bounded = math.isfinite(limits.lower[i]) and math.isfinite(limits.upper[i])
         joint = _sub(root, 'joint', name=name, type='revolute' if bounded else 'continuous')
         _sub(joint, 'parent', link=parents[i])
-        _sub(joint, 'child', link=LINK_FRAMES[i])
+        _sub(joint, 'child', link=frames[i])
         _sub(joint, 'origin', xyz=_vec(*origins[i]), rpy=_vec(0.0, 0.0, 0.0))
         _sub(joint, 'axis', xyz=_vec(0.0, 0.0, 1.0))
         speed = limits.velocity[i] if math.isfinite(limits.velocity[i]) else UNLIMITED_VELOCITY
@@ -232,9 +239,9 @@ def robot_urdf(robot: RobotDescription) -> str:
         _sub(joint, 'dynamics', damping=_num(arm.joint_damping[i]), friction='0.0')
 
     fixed = _sub(root, 'joint', name='tool0_joint', type='fixed')
-    _sub(fixed, 'parent', link=LINK_FRAMES[1])
+    _sub(fixed, 'parent', link=frames[-1])
     _sub(fixed, 'child', link=TIP_FRAME)
-    _sub(fixed, 'origin', xyz=_vec(lengths[1], 0.0, 0.0), rpy=_vec(0.0, 0.0, 0.0))
+    _sub(fixed, 'origin', xyz=_vec(lengths[-1], 0.0, 0.0), rpy=_vec(0.0, 0.0, 0.0))
 
     ET.indent(root, space='  ')
     comment = (f'<!-- generated by arm_sim (arm_dynamics.urdf) from the robot parameters; '
@@ -244,7 +251,7 @@ def robot_urdf(robot: RobotDescription) -> str:
 
 
 def urdf_from_params(params: Mapping[str, Any] | None = None,
-                     name: str = 'arm_sim_two_link') -> str:
+                     name: str | None = None) -> str:
     """The URDF of the arm the robot parameters ``params`` describe (missing ones: the
     defaults). Raises ValueError naming a bad or unknown parameter."""
     return RobotDescription.from_params(params, name=name).to_urdf()

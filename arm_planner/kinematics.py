@@ -46,3 +46,61 @@ def nearest_equivalent(q, reference) -> np.ndarray:
     q = np.asarray(q, dtype=float)
     ref = np.asarray(reference, dtype=float)
     return q - 2.0 * np.pi * np.round((q - ref) / (2.0 * np.pi))
+
+
+#: Numeric inverse kinematics: tip tolerance [m] and iteration cap.
+IK_TOLERANCE = 1e-10
+IK_ITERATIONS = 200
+
+
+def solve_ik(arm, p, q_start, reach_margin: float = 0.0, what: str = 'goal') -> np.ndarray:
+    """Joint angles putting the tip of any planar chain at ``p``, nearest ``q_start``.
+
+    For models without closed-form inverse kinematics (``planar_chain``): damped least
+    squares (Levenberg-Marquardt) on the tip position from ``q_start``, so a redundant arm
+    takes a solution reached by the smallest joint motion the iteration finds. Refuses a
+    point beyond the reach (the sum of the link lengths, less ``reach_margin``) and one the
+    iteration cannot reach to ``IK_TOLERANCE`` (inside the inner hole of the workspace, or
+    at a singularity), with the numbers.
+
+    Parameters
+    ----------
+    arm : a :class:`~arm_dynamics.models.RobotModel` (``forward_kinematics``, ``jacobian``).
+    p : (2,) m; q_start : (n,) rad.
+
+    Returns
+    -------
+    (n,) rad, with ``|forward_kinematics(q) - p| <= IK_TOLERANCE``.
+
+    References: Buss, *Introduction to Inverse Kinematics with Jacobian Transpose,
+    Pseudoinverse and Damped Least Squares methods* (2004), §5; Siciliano et al. (2009),
+    §3.7.
+    """
+    p = np.asarray(p, dtype=float)
+    if p.shape != (2,) or not np.isfinite(p).all():
+        raise PlanningError(f'{what} must be two finite numbers (x, y) in m, got '
+                            f'{p.ravel().tolist()}')
+    reach = float(np.sum(arm.link_lengths)) - reach_margin
+    r = float(np.hypot(*p))
+    where = f'{what} ({p[0]:.4f}, {p[1]:.4f}) m'
+    if r > reach:
+        raise PlanningError(f'{where} is out of reach: r = {r:.4f} m > the sum of the link '
+                            f'lengths less reach_margin = {reach:.4f} m')
+    q = np.asarray(q_start, dtype=float).copy()
+    damping = 1e-3
+    err = p - arm.forward_kinematics(q)
+    for _ in range(IK_ITERATIONS):
+        if np.hypot(*err) <= IK_TOLERANCE:
+            return q
+        jac = arm.jacobian(q)
+        step = jac.T @ np.linalg.solve(jac @ jac.T + damping**2 * np.eye(2), err)
+        trial = q + step
+        trial_err = p - arm.forward_kinematics(trial)
+        if np.hypot(*trial_err) < np.hypot(*err):
+            q, err, damping = trial, trial_err, max(damping * 0.5, 1e-9)
+        else:
+            damping *= 4.0
+    raise PlanningError(f'{where} cannot be reached: the nearest tip position found is '
+                        f'{float(np.hypot(*err)):.3g} m away (inside the inner hole of the '
+                        'workspace, or at a singularity)')
+

@@ -69,20 +69,22 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from arm_control.trajectory import Trajectory
 from arm_dynamics.limits import JointLimits
+from arm_dynamics.models import RobotModel, robot_model
 from arm_dynamics.two_link import TwoLinkArm
-from arm_planner.kinematics import PlanningError, check_point, nearest_equivalent
+from arm_planner.kinematics import PlanningError, check_point, nearest_equivalent, solve_ik
 from arm_planner.time_scaling import KINDS, TimeScaling, from_limits
 
 MODES = ('regulation', 'straight_line')
 PROFILES = ('set_point', 'synchronized')
 FEASIBILITY = ('stretch', 'refuse')
 ELBOW_CHOICES = ('up', 'down', 'keep')
+NO_ELBOW = 'none'          # the elbow of a plan for an arm without closed-form IK
 LINE_TOLERANCE = 5e-5     # m: controller-interpolated path vs the line, proven
 INITIAL_SEGMENTS = 8
 MIN_LINE_TOLERANCE = 1e-9  # m: finer line tolerances are refused (bounded cost)
@@ -204,13 +206,13 @@ class PlannerSettings:
     line_tolerance: float = LINE_TOLERANCE
 
 
-def make_arm(robot: dict) -> TwoLinkArm:
-    """The planner's model from robot parameters (the ROBOT_PARAMS names; extra keys are
-    ignored)."""
-    return TwoLinkArm.from_params(robot)
+def make_arm(robot: dict) -> RobotModel:
+    """The planner's model from robot parameters (the ROBOT_PARAMS names, ``model`` naming
+    the kind; extra keys are ignored)."""
+    return robot_model(robot)
 
 
-def plan_goal(arm: TwoLinkArm, effort_limits, q_current, goal,
+def plan_goal(arm: RobotModel, effort_limits, q_current, goal,
               settings: PlannerSettings, joint_limits: JointLimits | None = None,
               qd_current=None) -> Plan:
     """Plan per ``settings.mode``: :func:`plan_regulation` or :func:`plan_straight_line`.
@@ -240,6 +242,10 @@ def plan_goal(arm: TwoLinkArm, effort_limits, q_current, goal,
         With the reason, naming the numbers.
     """
     s = settings
+    if s.mode == 'straight_line' and not closed_form_ik(arm):
+        raise PlanningError(
+            f'straight lines need closed-form inverse kinematics, which only the 2-R arm '
+            f'(model two_link) has; this arm has {arm.n_dof} joints: use mode regulation')
     moving = qd_current is not None and not (
         np.abs(np.asarray(qd_current, dtype=float)) < REST_SPEED).all()
     set_point = s.mode == 'regulation' and s.regulation_profile == 'set_point'
@@ -263,14 +269,15 @@ def plan_goal(arm: TwoLinkArm, effort_limits, q_current, goal,
                                joint_max_velocity=s.joint_max_velocity,
                                joint_max_acceleration=s.joint_max_acceleration, **common)
     if s.mode == 'straight_line':
-        return plan_straight_line(arm, effort_limits, q_current, goal, max_speed=s.max_speed,
+        return plan_straight_line(cast(TwoLinkArm, arm), effort_limits, q_current, goal,
+                                  max_speed=s.max_speed,
                                   max_acceleration=s.max_acceleration,
                                   tolerance=s.line_tolerance, **common)
     raise ValueError(f"mode must be one of {', '.join(MODES)}, got {s.mode!r}")
 
 
 # ---------------------------------------------------------------------- stopping
-def plan_stop(arm: TwoLinkArm, effort_limits, q_current, qd_current, *,
+def plan_stop(arm: RobotModel, effort_limits, q_current, qd_current, *,
               joint_max_acceleration=3.0, joint_limits: JointLimits | None = None) -> Plan:
     """Bring a moving arm to rest: each joint ``q(t) = q0 + v T (s - s^3 + s^4 / 2)``,
     ``s = t / T``, so velocity ``v (1 - 3 s^2 + 2 s^3)`` falls from ``v`` to 0 with zero
@@ -282,15 +289,16 @@ def plan_stop(arm: TwoLinkArm, effort_limits, q_current, qd_current, *,
     (PlanningError) if no ``T`` up to ``MAX_DURATION`` fits, or if the arm cannot come to
     rest inside ``joint_limits``.
     """
-    limits = _positive_pair('effort_limits', effort_limits)
+    n = arm.n_dof
+    limits = _positive_pair('effort_limits', effort_limits, n)
     q0 = np.asarray(q_current, dtype=float)
     v = np.asarray(qd_current, dtype=float)
-    if q0.shape != (2,) or v.shape != (2,) or not (np.isfinite(q0).all()
+    if q0.shape != (n,) or v.shape != (n,) or not (np.isfinite(q0).all()
                                                    and np.isfinite(v).all()):
-        raise PlanningError(f'the current joint state must be finite (2 positions, 2 '
+        raise PlanningError(f'the current joint state must be finite ({n} positions, {n} '
                             f'velocities), got {q0.ravel().tolist()}, {v.ravel().tolist()}')
-    amax = _positive_pair('joint_max_acceleration', joint_max_acceleration)
-    now = np.abs(arm.inverse_dynamics(q0, v, np.zeros(2)))  # the stop's first instant
+    amax = _positive_pair('joint_max_acceleration', joint_max_acceleration, n)
+    now = np.abs(arm.inverse_dynamics(q0, v, np.zeros(n)))  # the stop's first instant
     if (now > limits).any():
         j = int(np.argmax(now / limits))
         raise PlanningError(
@@ -324,7 +332,7 @@ def plan_stop(arm: TwoLinkArm, effort_limits, q_current, qd_current, *,
     return Plan(mode='stop', profile='stop', times=knots * duration, q=qk, qd=qdk, qdd=qddk,
                 ee_path=arm.forward_kinematics(qk), duration=duration, peak_torque=peak,
                 margin=limits - peak, stretched_from=None, messages=(note,),
-                elbow=str(arm.elbow_of(qk[-1])), ee_start=arm.forward_kinematics(q0),
+                elbow=_elbow_of(arm, qk[-1]), ee_start=arm.forward_kinematics(q0),
                 goal=arm.forward_kinematics(qk[-1]),
                 ee_velocity=np.einsum('kij,kj->ki', jac, qdk),
                 ee_acceleration=np.einsum('kij,kj->ki', jac, qddk) + arm.jdot_qd(qk, qdk),
@@ -339,7 +347,7 @@ def _stop_states(q0, v, duration: float, s: np.ndarray) -> tuple[np.ndarray, ...
     return q, qd, qdd
 
 
-def _after_stop(arm: TwoLinkArm, effort_limits, stop: Plan, rest: Plan) -> Plan:
+def _after_stop(arm: RobotModel, effort_limits, stop: Plan, rest: Plan) -> Plan:
     """``rest`` (planned from where ``stop`` ends, at rest) after ``stop`` and a
     ``STOP_DWELL`` hold, as one plan."""
     limits = _positive_pair('effort_limits', effort_limits)
@@ -366,7 +374,7 @@ def _after_stop(arm: TwoLinkArm, effort_limits, stop: Plan, rest: Plan) -> Plan:
 
 
 # ---------------------------------------------------------------------- regulation
-def plan_regulation(arm: TwoLinkArm, effort_limits, q_current, goal, *, elbow: str = 'keep',
+def plan_regulation(arm: RobotModel, effort_limits, q_current, goal, *, elbow: str = 'keep',
                     profile: str = 'set_point', time_scaling: str = 'quintic',
                     duration: float = 0.0, joint_max_velocity=1.5,
                     joint_max_acceleration=3.0, feasibility: str = 'stretch',
@@ -397,13 +405,18 @@ def plan_regulation(arm: TwoLinkArm, effort_limits, q_current, goal, *, elbow: s
     -------
     Plan
     """
-    limits, q_current, goal = _common_inputs(effort_limits, q_current, goal)
+    limits, q_current, goal = _common_inputs(effort_limits, q_current, goal, arm.n_dof)
     _choice('profile', profile, PROFILES)
     _choice('time_scaling', time_scaling, KINDS)
     _choice('feasibility', feasibility, FEASIBILITY)
-    branch = _branch(arm, elbow, q_current)
-    check_point(arm, goal, reach_margin, singularity_margin)
-    q_goal = nearest_equivalent(arm.inverse_kinematics(goal, branch), q_current)
+    if closed_form_ik(arm):
+        two_link = cast(TwoLinkArm, arm)
+        branch = _branch(two_link, elbow, q_current)
+        check_point(two_link, goal, reach_margin, singularity_margin)
+        q_goal = nearest_equivalent(two_link.inverse_kinematics(goal, branch), q_current)
+    else:  # any planar chain: numeric IK from where the arm is; no elbow to choose
+        branch = NO_ELBOW
+        q_goal = nearest_equivalent(solve_ik(arm, goal, q_current, reach_margin), q_current)
     if joint_limits is not None:
         q_goal = _within_limits(q_goal, q_current, joint_limits, goal)
     ee_start = arm.forward_kinematics(q_current)
@@ -414,8 +427,8 @@ def plan_regulation(arm: TwoLinkArm, effort_limits, q_current, goal, *, elbow: s
                 'torque is the holding (gravity) torque at the goal, the transient depends '
                 "on the controller's gains")
         return _set_point(arm, limits, q_goal, goal, ee_start, branch, 'regulation', note)
-    vmax = _positive_pair('joint_max_velocity', joint_max_velocity)
-    amax = _positive_pair('joint_max_acceleration', joint_max_acceleration)
+    vmax = _positive_pair('joint_max_velocity', joint_max_velocity, arm.n_dof)
+    amax = _positive_pair('joint_max_acceleration', joint_max_acceleration, arm.n_dof)
     messages = []
     if duration > 0.0:
         scaling = _requested(time_scaling, duration)
@@ -586,6 +599,21 @@ def _from_limits(kind: str, speed_time: float, accel_time: float, what: str) -> 
                         f'{MAX_DURATION:g} s, the longest plan; raise the limits')
 
 
+def _tuple(q) -> str:
+    """Joint values as ``(a, b, ...)`` with 4 decimals."""
+    return '(' + ', '.join(f'{float(v):.4f}' for v in np.ravel(q)) + ')'
+
+
+def closed_form_ik(arm) -> bool:
+    """Does the model offer closed-form inverse kinematics with an elbow choice (the 2-R
+    arm)? Only then can the planner make straight lines."""
+    return hasattr(arm, 'inverse_kinematics')
+
+
+def _elbow_of(arm, q) -> str:
+    return str(arm.elbow_of(q)) if closed_form_ik(arm) else NO_ELBOW
+
+
 def _fmt(values, digits: int) -> str:
     return '[' + ', '.join(f'{float(v):.{digits}f}' for v in np.ravel(values)) + ']'
 
@@ -595,19 +623,28 @@ def _choice(name: str, value: str, choices: tuple[str, ...]) -> None:
         raise ValueError(f"{name} must be one of {', '.join(choices)}, got {value!r}")
 
 
-def _positive_pair(name: str, value) -> np.ndarray:
-    v = np.broadcast_to(np.asarray(value, dtype=float), (2,)).copy()
+def _positive_pair(name: str, value, n: int | None = None) -> np.ndarray:
+    """``value`` (a scalar or one per joint) as (n,) positive numbers, or ValueError; n
+    None: as many as given (a scalar: two)."""
+    if n is None:
+        n = int(np.size(value)) if np.ndim(value) else 2
+    try:
+        v = np.broadcast_to(np.asarray(value, dtype=float), (n,)).copy()
+    except ValueError:
+        raise ValueError(f'{name} must have {n} values (one per joint), got '
+                         f'{np.ravel(value).tolist()}') from None
     if not (np.isfinite(v).all() and (v > 0).all()):
         raise ValueError(f'{name} must be > 0, got {np.ravel(value).tolist()}')
     return v
 
 
-def _common_inputs(effort_limits, q_current, goal) -> tuple[np.ndarray, ...]:
-    limits = _positive_pair('effort_limits', effort_limits)
+def _common_inputs(effort_limits, q_current, goal, n: int = 2) -> tuple[np.ndarray, ...]:
+    limits = _positive_pair('effort_limits', effort_limits, n)
     q = np.asarray(q_current, dtype=float)
-    if q.shape != (2,) or not np.isfinite(q).all():
-        raise PlanningError(f'the current joint positions must be two finite numbers, got '
-                            f'{q.ravel().tolist()}')
+    if q.shape != (n,) or not np.isfinite(q).all():
+        count = 'two' if n == 2 else str(n)
+        raise PlanningError(f'the current joint positions must be {count} finite numbers, '
+                            f'got {q.ravel().tolist()}')
     p = np.asarray(goal, dtype=float)
     if p.shape != (2,) or not np.isfinite(p).all():
         raise PlanningError(f'goal must be two finite numbers (x, y) in m, got '
@@ -800,7 +837,7 @@ def _jerk_bound(arm: TwoLinkArm, h, q, dq, ddq, segments) -> np.ndarray:
     return np.asarray(total)
 
 
-def _torque_terms(arm: TwoLinkArm, q, dq, ddq) -> tuple[np.ndarray, ...]:
+def _torque_terms(arm: RobotModel, q, dq, ddq) -> tuple[np.ndarray, ...]:
     """Coefficients of ``tau(u) = a u^2 + b u + c``, ``u = 1 / T`` [1/s], each (M, 2) N m."""
     c = arm.inverse_dynamics(q, np.zeros_like(dq), np.zeros_like(ddq))
     b = arm.damping_torque(dq)
@@ -823,7 +860,7 @@ def _fit_duration(terms, limits, requested: float, policy: str, q_grid,
         qk = q_grid[k]
         raise PlanningError(
             f'gravity alone exceeds the effort limits along the plan: holding q = '
-            f'({qk[0]:.4f}, {qk[1]:.4f}) rad needs {abs(c[k, j]):.2f} N m at joint {j + 1} > '
+            f'{_tuple(qk)} rad needs {abs(c[k, j]):.2f} N m at joint {j + 1} > '
             f'limit {limits[j]:g} N m; no duration fits')
     if _load(terms, limits, 1.0 / requested) <= 1.0:
         return requested, None
@@ -851,7 +888,7 @@ def _fit_duration(terms, limits, requested: float, policy: str, q_grid,
     return fitted, requested
 
 
-def _finish(arm: TwoLinkArm, limits, mode: str, profile: str, branch: str, ee_start, goal,
+def _finish(arm: RobotModel, limits, mode: str, profile: str, branch: str, ee_start, goal,
             scaling: TimeScaling, knots: np.ndarray, states, policy: str,
             messages: list[str], line, joint_limits: JointLimits | None = None) -> Plan:
     """Joint limits (positions refused, speeds stretched or refused), torque check
@@ -911,17 +948,17 @@ def _finish(arm: TwoLinkArm, limits, mode: str, profile: str, branch: str, ee_st
                 ee_acceleration=xdd, max_line_deviation=deviation)
 
 
-def _set_point(arm: TwoLinkArm, limits, q_goal, goal, ee_start, branch: str, mode: str,
+def _set_point(arm: RobotModel, limits, q_goal, goal, ee_start, branch: str, mode: str,
                note: str) -> Plan:
     """A one-point plan holding ``q_goal``; refused if gravity there exceeds the limits."""
     hold = np.abs(arm.gravity_vector(q_goal))
     if (hold > limits).any():
         j = int(np.argmax(hold / limits))
         raise PlanningError(
-            f'holding the goal q = ({q_goal[0]:.4f}, {q_goal[1]:.4f}) rad against gravity '
+            f'holding the goal q = {_tuple(q_goal)} rad against gravity '
             f'needs {hold[j]:.2f} N m at joint {j + 1} > limit {limits[j]:g} N m')
     q = np.asarray(q_goal, dtype=float)[None, :]
-    zero = np.zeros((1, 2))
+    zero = np.zeros((1, len(q_goal)))
     return Plan(mode=mode, profile='set_point', times=np.zeros(1), q=q, qd=zero, qdd=zero,
                 ee_path=arm.forward_kinematics(q), duration=0.0, peak_torque=hold,
                 margin=limits - hold, stretched_from=None, messages=(note,), elbow=branch,

@@ -37,6 +37,7 @@ from arm_common.node import (
 )
 from arm_common.params import ParamSpec
 from arm_dynamics.limits import JointLimits
+from arm_dynamics.models import joint_count
 from arm_dynamics.robot import ROBOT_PARAMS
 from arm_dynamics.timing import parse_answer_tag
 from arm_planner.kinematics import PlanningError
@@ -199,7 +200,7 @@ class PlannerNode(Node):
 
     def __init__(self) -> None:
         super().__init__('planner', cli_args=clock_in_namespace())
-        p = declare_parameters(self, ROBOT_PARAMS + PLANNER_PARAMS)
+        p = declare_parameters(self, ROBOT_PARAMS + PLANNER_PARAMS, joints=joint_count)
         try:
             self.arm = make_arm(p)
             self.joint_limits = JointLimits.from_params(p)
@@ -248,11 +249,15 @@ class PlannerNode(Node):
 
     # ------------------------------------------------------------------ parameters
     def _validate(self, params: dict[str, Any]) -> str | None:
-        l1, l2 = params['link_lengths']
-        widest = min(l1, l2)  # half the annulus width: a margin beyond it leaves nothing
-        if params['reach_margin'] >= widest:
-            return (f"reach_margin {params['reach_margin']:g} m leaves no reachable goal: "
-                    f'it must be < min(l1, l2) = {widest:g} m')
+        lengths = params['link_lengths']
+        if len(lengths) == 2:
+            widest = min(lengths)  # half the annulus width: a margin beyond it leaves nothing
+            if params['reach_margin'] >= widest:
+                return (f"reach_margin {params['reach_margin']:g} m leaves no reachable goal: "
+                        f'it must be < min(l1, l2) = {widest:g} m')
+        elif params['reach_margin'] >= sum(lengths):
+            return (f"reach_margin {params['reach_margin']:g} m leaves no reachable goal: it "
+                    f'must be < the sum of the link lengths = {sum(lengths):g} m')
         return None
 
     def _validate_change(self, changed: dict[str, Any]) -> str | None:

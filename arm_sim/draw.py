@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from arm_dynamics import TwoLinkArm
+from arm_dynamics.models import RobotModel
 
 #: Colours: links, the tip's trail, the commanded line.
 LINK_COLOUR = '#1f4e9c'
@@ -77,11 +78,9 @@ def pose_indices(xy: np.ndarray, n_poses: int) -> np.ndarray:
     return np.unique(np.minimum(np.searchsorted(travelled, marks), len(xy) - 1))
 
 
-def _draw_motion(ax: Any, arm: TwoLinkArm, motion: Motion, n_poses: int) -> None:
-    q = motion.q
-    l1 = arm.link_lengths[0]
-    elbow = l1 * np.stack([np.cos(q[:, 0]), np.sin(q[:, 0])], axis=-1)
-    tip = arm.forward_kinematics(q)
+def _draw_motion(ax: Any, arm: RobotModel, motion: Motion, n_poses: int) -> None:
+    points = arm.joint_points(motion.q)          # (K, n + 1, 2): base, joints, tip
+    tip = points[:, -1]
     if motion.line is not None:
         a, b = motion.line
         ax.plot([a[0], b[0]], [a[1], b[1]], '-', color=LINE_COLOUR, lw=5, alpha=0.45,
@@ -89,10 +88,10 @@ def _draw_motion(ax: Any, arm: TwoLinkArm, motion: Motion, n_poses: int) -> None
     picks = pose_indices(tip, n_poses)
     for k, i in enumerate(picks):
         alpha = 0.25 + 0.75 * k / max(len(picks) - 1, 1)
-        xs, ys = [0.0, elbow[i, 0], tip[i, 0]], [0.0, elbow[i, 1], tip[i, 1]]
+        xs, ys = points[i, :, 0], points[i, :, 1]
         ax.plot(xs, ys, '-', color=LINK_COLOUR, lw=4, alpha=alpha, solid_capstyle='round',
                 label='arm' if k == len(picks) - 1 else None, zorder=3)
-        ax.plot(xs[:2], ys[:2], 'o', color='k', ms=4, alpha=alpha, zorder=4)
+        ax.plot(xs[:-1], ys[:-1], 'o', color='k', ms=4, alpha=alpha, zorder=4)
     ax.plot(tip[:, 0], tip[:, 1], '-', color=TRAIL_COLOUR, lw=1.2, label='tip trail',
             zorder=5)
     ax.plot(0.0, 0.0, 's', color='0.3', ms=9, zorder=1)

@@ -41,7 +41,8 @@ from dataclasses import dataclass
 from typing import Any, cast
 
 from arm_bag.msgdefs import schema_text
-from arm_dynamics.two_link import TwoLinkArm
+from arm_dynamics.models import RobotModel
+from arm_dynamics.urdf import link_frames
 
 #: The port Foxglove connects to by default (``ws://localhost:8765``).
 DEFAULT_PORT = 8765
@@ -54,7 +55,8 @@ GOAL_TYPE = 'geometry_msgs/msg/PoseStamped'
 #: Encodings the server accepts from publishing clients, preferred first (Foxglove
 #: publishes in the first one it supports).
 CLIENT_ENCODINGS = ('cdr', 'json')
-#: Frames, as the URDF names them (:mod:`arm_dynamics.urdf`).
+#: Frames, as the URDF names them for the 2-R arm (:mod:`arm_dynamics.urdf`; a chain of n
+#: links has ``link1`` .. ``link<n>`` between base and tip).
 FRAMES = ('base_link', 'link1', 'link2', 'tool0')
 #: CDR encapsulation header: XCDR1, little endian, no options.
 CDR_HEADER = b'\x00\x01\x00\x00'
@@ -77,36 +79,37 @@ def _about_z(angle: float) -> tuple[float, float, float, float]:
     return (0.0, 0.0, math.sin(angle / 2), math.cos(angle / 2))
 
 
-def arm_transforms(arm: TwoLinkArm, q: Sequence[float]) -> list[Transform]:
-    """The URDF's frame tree at joint positions ``q`` [rad].
+def arm_transforms(arm: RobotModel, q: Sequence[float]) -> list[Transform]:
+    """The URDF's frame tree at joint positions ``q`` [rad] (n joints).
 
-    ``base_link -> link1`` rotates by ``q1`` at the origin, ``link1 -> link2`` by ``q2`` at
-    the elbow and ``link2 -> tool0`` is fixed at the tip, each child's x axis along its
-    link (:mod:`arm_dynamics.urdf`). The elbow is at ``l1`` along link 1 and ``tool0`` at
-    the tip of :meth:`TwoLinkArm.forward_kinematics` expressed in ``link2`` (``(l2, 0, 0)``
-    to rounding), so composing the three gives that tip.
+    ``base_link -> link1`` rotates by ``q1`` at the origin, ``link<i> -> link<i+1>`` by
+    ``q<i+1>`` at the end of link ``i`` (``(l_i, 0, 0)``), and ``link<n> -> tool0`` is fixed
+    at the tip, each child's x axis along its link (:mod:`arm_dynamics.urdf`). ``tool0`` is
+    the tip of the model's :meth:`joint_points` expressed in ``link<n>`` (``(l_n, 0, 0)`` to
+    rounding), so composing them gives that tip.
 
     Raises
     ------
     ValueError
-        ``q`` is not two finite angles.
+        ``q`` is not n finite angles.
     """
     qa = [float(v) for v in q]
-    if len(qa) != 2 or not all(math.isfinite(v) for v in qa):
-        raise ValueError(f'q must be two finite joint positions [rad], got {list(q)}')
-    q1, q2 = qa
-    tip = arm.forward_kinematics([q1, q2])
-    l1 = float(arm.link_lengths[0])
-    elbow = (l1 * math.cos(q1), l1 * math.sin(q1))
-    # The tip in link2's frame: rotate (tip - elbow) back by q1 + q2.
-    dx, dy = float(tip[0]) - elbow[0], float(tip[1]) - elbow[1]
-    c, s = math.cos(q1 + q2), math.sin(q1 + q2)
-    return [
-        Transform(FRAMES[0], FRAMES[1], (0.0, 0.0, 0.0), _about_z(q1)),
-        Transform(FRAMES[1], FRAMES[2], (l1, 0.0, 0.0), _about_z(q2)),
-        Transform(FRAMES[2], FRAMES[3], (c * dx + s * dy, -s * dx + c * dy, 0.0),
-                  (0.0, 0.0, 0.0, 1.0)),
-    ]
+    n = arm.n_dof
+    if len(qa) != n or not all(math.isfinite(v) for v in qa):
+        count = 'two' if n == 2 else str(n)
+        raise ValueError(f'q must be {count} finite joint positions [rad], got {list(q)}')
+    points = arm.joint_points(qa)
+    frames = (FRAMES[0],) + link_frames(n) + (FRAMES[-1],)
+    out = [Transform(frames[0], frames[1], (0.0, 0.0, 0.0), _about_z(qa[0]))]
+    out += [Transform(frames[i], frames[i + 1], (float(arm.link_lengths[i - 1]), 0.0, 0.0),
+                      _about_z(qa[i])) for i in range(1, n)]
+    # The tip in the last link's frame: rotate (tip - last joint) back by its angle.
+    dx, dy = (float(v) for v in points[-1] - points[-2])
+    angle = sum(qa)
+    c, s = math.cos(angle), math.sin(angle)
+    out.append(Transform(frames[n], frames[n + 1], (c * dx + s * dy, -s * dx + c * dy, 0.0),
+                         (0.0, 0.0, 0.0, 1.0)))
+    return out
 
 
 def joint_positions(names: Sequence[str], positions: Sequence[float],

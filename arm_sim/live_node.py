@@ -41,8 +41,8 @@ from arm_common.node import (
     steady_clock,
 )
 from arm_common.params import ParamSpec
+from arm_dynamics.models import joint_count, robot_model
 from arm_dynamics.robot import ROBOT_PARAMS
-from arm_dynamics.two_link import TwoLinkArm
 from arm_dynamics.urdf import urdf_from_params
 from arm_sim.live import (
     DEFAULT_PORT,
@@ -79,13 +79,13 @@ class LiveNode(Node):
 
     def __init__(self) -> None:
         super().__init__('live', cli_args=clock_in_namespace())
-        p = declare_parameters(self, ROBOT_PARAMS + LIVE_PARAMS)
+        p = declare_parameters(self, ROBOT_PARAMS + LIVE_PARAMS, joints=joint_count)
         robot = {s.name: p[s.name] for s in ROBOT_PARAMS}
         try:
             urdf = urdf_from_params(robot)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
-        self.arm = TwoLinkArm.from_params(robot)
+        self.arm = robot_model(robot)
         self.joint_names = list(robot['joint_names'])
         self.goal_topic = self.resolve_topic_name(GOAL_TOPIC)
         try:

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from arm_dynamics.two_link import TwoLinkArm
+from arm_dynamics.models import RobotModel
 from arm_dynamics.urdf import COLOURS
 
 #: Marker shapes (visualization_msgs/Marker type names, lower case).
@@ -115,25 +115,22 @@ class MarkerSizes:
                    line_width=0.01 * reach)
 
 
-def link_points(arm: TwoLinkArm, q: np.ndarray) -> np.ndarray:
-    """Base, elbow and tip [m] of the arm at ``q``, from :meth:`TwoLinkArm.forward_kinematics`.
+def link_points(arm: RobotModel, q: np.ndarray) -> np.ndarray:
+    """Base, each joint after it and the tip [m] of the arm at ``q``: the model's own
+    :meth:`~arm_dynamics.models.RobotModel.joint_points`.
 
     Parameters
     ----------
-    arm : TwoLinkArm
-    q : (2,) or (K, 2), rad
+    arm : any :class:`~arm_dynamics.models.RobotModel` of n joints
+    q : (n,) or (K, n), rad
 
     Returns
     -------
-    (3, 2) or (K, 3, 2), m
-        Rows base (0, 0), elbow ``l1 (cos q1, sin q1)`` and tip (forward kinematics).
+    (n + 1, 2) or (K, n + 1, 2), m
+        Rows base (0, 0), the joints (for the 2-R arm the elbow ``l1 (cos q1, sin q1)``)
+        and the tip (forward kinematics).
     """
-    q = np.asarray(q, dtype=float)
-    l1, l2 = arm.link_lengths
-    stretched = np.stack([q[..., 0], np.zeros_like(q[..., 0])], axis=-1)
-    elbow = arm.forward_kinematics(stretched) * (l1 / (l1 + l2))
-    tip = arm.forward_kinematics(q)
-    return np.stack([np.zeros_like(tip), elbow, tip], axis=-2)
+    return arm.joint_points(np.asarray(q, dtype=float))
 
 
 def _xyz(xy: np.ndarray | None) -> np.ndarray:
@@ -151,17 +148,17 @@ def _strip(ns: str, xy: np.ndarray | None, width: float) -> MarkerShape:
                        (width, 0.0, 0.0), MARKER_COLOURS[ns], visible=visible)
 
 
-def arm_markers(arm: TwoLinkArm, q: np.ndarray, trail: np.ndarray | None = None,
+def arm_markers(arm: RobotModel, q: np.ndarray, trail: np.ndarray | None = None,
                 goal: tuple[float, float] | np.ndarray | None = None,
                 path: np.ndarray | None = None) -> tuple[MarkerShape, ...]:
     """The markers of the arm at ``q`` with its tip's trail, goal and planned path.
 
     Parameters
     ----------
-    arm : TwoLinkArm
-        The robot (link lengths [m]).
-    q : (2,) rad
-        Joint angles, shoulder then elbow.
+    arm : RobotModel
+        The robot (n joints; link lengths [m]).
+    q : (n,) rad
+        Joint angles, base to tip.
     trail : (N, 2) m or None
         The tip's recent positions, oldest first (e.g. :meth:`TipTrail.points`); fewer
         than 2 or None: no trail.
@@ -181,8 +178,9 @@ def arm_markers(arm: TwoLinkArm, q: np.ndarray, trail: np.ndarray | None = None,
         ``q``, ``goal``, ``trail`` or ``path`` of the wrong shape or not finite.
     """
     q = np.asarray(q, dtype=float)
-    if q.shape != (2,) or not np.isfinite(q).all():
-        raise ValueError(f'q must be 2 finite angles [rad], got {q.tolist()}')
+    n = arm.n_dof
+    if q.shape != (n,) or not np.isfinite(q).all():
+        raise ValueError(f'q must be {n} finite angles [rad], got {q.tolist()}')
     for name, xy in (('trail', trail), ('path', path)):
         if xy is not None:
             a = np.asarray(xy, dtype=float)
@@ -195,13 +193,16 @@ def arm_markers(arm: TwoLinkArm, q: np.ndarray, trail: np.ndarray | None = None,
         if goal_xy.shape != (2,) or not np.isfinite(goal_xy).all():
             raise ValueError(f'goal must be a finite (x, y) [m], got {goal_xy.tolist()}')
     sizes = MarkerSizes.for_reach(sum(arm.link_lengths))
-    base, elbow, tip = _xyz(link_points(arm, q))
+    points = _xyz(link_points(arm, q))
+    tip = points[-1]
+    # Link 1 in its colour, every link after it in link 2's.
     c1, c2 = MARKER_COLOURS['link1'], MARKER_COLOURS['link2']
-    links = MarkerShape('links', 'line_list', np.array([base, elbow, elbow, tip]),
-                        (sizes.link_width, 0.0, 0.0), c1,
-                        colours=np.array([c1, c1, c2, c2], dtype=float))
+    ends = np.repeat(points, 2, axis=0)[1:-1]           # p0 p1 p1 p2 ... p_n
+    colours = np.array([c1 if k < 2 else c2 for k in range(len(ends))], dtype=float)
+    links = MarkerShape('links', 'line_list', ends, (sizes.link_width, 0.0, 0.0), c1,
+                        colours=colours)
     d = sizes.joint_diameter
-    joints = MarkerShape('joints', 'sphere_list', np.array([base, elbow]), (d, d, d),
+    joints = MarkerShape('joints', 'sphere_list', points[:-1], (d, d, d),
                          MARKER_COLOURS['joints'])
     d = sizes.tip_diameter
     tip_marker = MarkerShape('tip', 'sphere', tip[None], (d, d, d), MARKER_COLOURS['tip'])
@@ -235,34 +236,34 @@ class TipTrail:
             raise ValueError(f'window_ns must be >= 0 and max_points >= 1, got {window_ns}, '
                              f'{max_points}')
         self.window_ns = int(window_ns)
-        self._states: deque[tuple[int, float, float]] = deque(maxlen=int(max_points))
+        self._states: deque[tuple[int, tuple[float, ...]]] = deque(maxlen=int(max_points))
 
     def __len__(self) -> int:
         return len(self._states)
 
     def add(self, stamp_ns: int, q: np.ndarray) -> None:
-        """Add the joint state ``q`` [rad] (2,) stamped ``stamp_ns`` [ns]."""
+        """Add the joint state ``q`` [rad] (n,) stamped ``stamp_ns`` [ns]."""
         states = self._states
         if states and stamp_ns <= states[-1][0]:
             if stamp_ns < states[-1][0]:
                 states.clear()  # time went back: a new run
             else:
                 states.pop()  # the same state again
-        states.append((int(stamp_ns), float(q[0]), float(q[1])))
+        states.append((int(stamp_ns), tuple(float(v) for v in q)))
         while states[0][0] < stamp_ns - self.window_ns:
             states.popleft()
 
     def angles(self) -> np.ndarray:
-        """(N, 2) rad: the joint angles of the trail, oldest first."""
+        """(N, n) rad: the joint angles of the trail, oldest first."""
         if not self._states:
             return np.zeros((0, 2))
-        return np.array(self._states, dtype=float)[:, 1:]
+        return np.array([s[1] for s in self._states], dtype=float)
 
     def stamps(self) -> np.ndarray:
         """(N,) int64 ns: their stamps."""
         return np.array([s[0] for s in self._states], dtype=np.int64)
 
-    def points(self, arm: TwoLinkArm) -> np.ndarray:
+    def points(self, arm: RobotModel) -> np.ndarray:
         """(N, 2) m: the tip along the trail, oldest first (forward kinematics)."""
         q = self.angles()
         return arm.forward_kinematics(q) if len(q) else np.zeros((0, 2))

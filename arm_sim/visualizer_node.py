@@ -29,8 +29,8 @@ from arm_common.node import (
     steady_clock,
 )
 from arm_common.params import ParamSpec
+from arm_dynamics.models import joint_count, robot_model
 from arm_dynamics.robot import ROBOT_PARAMS
-from arm_dynamics.two_link import TwoLinkArm
 from arm_dynamics.urdf import urdf_from_params
 from arm_sim.markers import MarkerShape, TipTrail, arm_markers
 
@@ -107,10 +107,11 @@ class VisualizerNode(Node):
 
     def __init__(self) -> None:
         super().__init__('visualizer', cli_args=clock_in_namespace())
-        p = declare_parameters(self, ROBOT_PARAMS + VISUALIZER_PARAMS)
+        p = declare_parameters(self, ROBOT_PARAMS + VISUALIZER_PARAMS,
+                               joints=joint_count)
         robot = {s.name: p[s.name] for s in ROBOT_PARAMS}
         try:
-            self.arm = TwoLinkArm.from_params(robot)
+            self.arm = robot_model(robot)
             urdf = urdf_from_params(robot)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None

@@ -2,12 +2,22 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.optimize import fsolve
 
 from arm_control.core import ControllerCore
-from arm_control.laws import ControlLaw, Gains
+from arm_control.laws import (
+    GAINS,
+    LAW_TABLE,
+    LAWS,
+    ControlLaw,
+    Gains,
+    gains_markdown,
+    laws_markdown,
+)
 from arm_control.trajectory import Trajectory, TrajectoryError, TrajectoryPoint
 from arm_dynamics import TwoLinkArm, simulate
 
@@ -120,3 +130,66 @@ def test_invalid_trajectory_keeps_the_current_reference():
         core.set_trajectory(['joint1', 'elbow'], [TrajectoryPoint(1.0, [0, 0])], 0.0, Q0,
                             np.zeros(2))
     assert core.update(0.1, Q0, np.zeros(2)).q_des.tolist() == Q0.tolist()
+
+
+# ---------------------------------------------------------------------- the law registry
+def test_pid_with_its_default_gains_holds_the_demo_pose_with_no_steady_state_error():
+    """The defaults of the registry: the integral reaches the 20.66 N m of gravity at the
+    demo's start pose (the old 20 N m clamp left 8.2e-3 rad there for ever)."""
+    assert abs(PLANT.gravity_vector(Q0)[0]) > 20.0, 'the pose needs more than the old clamp'
+    law = ControlLaw('pid', Gains(), PLANT, LIMITS)
+    res, _ = run(law, set_point(Q0), 30.0, dt=0.01)
+    err = np.abs(res.q[-1] - Q0).max()
+    assert err < 1e-6, f'steady-state error {err:.2e} rad (bound 1e-6)'
+
+
+def test_pids_default_integral_clamp_exceeds_the_largest_gravity_torque_of_the_arm():
+    q = np.stack(np.meshgrid(np.linspace(-np.pi, np.pi, 721),
+                             np.linspace(-np.pi, np.pi, 721)), -1).reshape(-1, 2)
+    largest = np.abs(PLANT.gravity_vector(q)).max(axis=0)
+    np.testing.assert_allclose(largest, [30.41, 5.886], atol=5e-3)  # stretched horizontally
+    assert (np.array(Gains().i_clamp) > largest).all()
+    assert (np.array(Gains().i_clamp) <= np.array(LIMITS)).all()
+
+
+def test_the_controllers_law_choices_and_help_come_from_the_registry():
+    from arm_control.controller_node import CONTROL_PARAMS
+    spec = {s.name: s for s in CONTROL_PARAMS}
+    assert spec['law'].choices == tuple(LAW_TABLE) == LAWS
+    for law in LAW_TABLE.values():
+        assert law.formula in spec['law'].description
+    for gain in GAINS:
+        assert spec[f'gains.{gain.name}'].default == list(gain.default)
+        assert spec[f'gains.{gain.name}'].unit == gain.unit
+
+
+def test_the_docs_law_and_gain_tables_are_the_registrys():
+    text = (Path(__file__).resolve().parents[1] / 'docs' / 'nodes.md').read_text()
+    for fn in (laws_markdown, gains_markdown):
+        marker = f'<!-- generated: arm_control.laws.{fn.__name__} -->\n'
+        assert marker in text, f'docs/nodes.md lacks {marker.strip()}'
+        block = text.split(marker, 1)[1].split('<!-- end generated -->', 1)[0]
+        assert block == fn(), (f'docs/nodes.md is out of date; replace the block after '
+                               f'{marker.strip()} with:\n{fn()}')
+
+
+def test_every_law_of_the_registry_gives_its_formulas_torque():
+    """Each entry's torque function against the formula it states, at random states."""
+    rng = np.random.default_rng(7)
+    gains = Gains(kp=(120.0, 70.0), kd=(15.0, 9.0), ki=(40.0, 20.0), i_clamp=(30.0, 8.0))
+    kp, kd = np.array(gains.kp), np.array(gains.kd)
+    for _ in range(20):
+        q, qd, qr, qdr, qddr = rng.uniform(-1, 1, (5, 2))
+        e, ed = qr - q, qdr - qd
+        expected = {
+            'pd': kp * e + kd * ed,
+            'pd_gravity': kp * e + kd * ed + PLANT.gravity_vector(q),
+            'computed_torque': PLANT.mass_matrix(q) @ (qddr + kd * ed + kp * e)
+            + PLANT.coriolis_matrix(q, qd) @ qd + PLANT.gravity_vector(q),
+            'pid': kp * e + kd * ed + np.clip(np.array(gains.ki) * e * 0.01,
+                                              -np.array(gains.i_clamp), gains.i_clamp),
+        }
+        for name in LAW_TABLE:
+            raw = ControlLaw(name, gains, PLANT, (1e6, 1e6))(q, qd, qr, qdr, qddr, 0.01).raw
+            np.testing.assert_allclose(raw, expected[name], rtol=1e-12, atol=1e-12,
+                                       err_msg=name)

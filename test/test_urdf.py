@@ -166,7 +166,7 @@ def test_joint_names_and_the_robot_name_come_from_the_parameters():
 @pytest.mark.parametrize('params, words', [
     ({'link_lenghts': [1.0, 1.0]}, "['link_lenghts']"),
     ({'link_masses': [0.0, 1.0]}, 'link_masses must be > 0 kg, got 0.0'),
-    ({'link_lengths': [1.0]}, 'link_lengths must have 2 values, got 1'),
+    ({'link_lengths': [1.0]}, 'link_lengths has 1 values but model two_link has 2 links'),
     ({'joint_names': ['a', 'a']}, "got ('a', 'a')"),
     ({'joint_names': ['tool0', 'b']}, "got ('tool0', 'b')"),
     ({'position_limits_lower': [1.0, 0.0], 'position_limits_upper': [0.5, 1.0]},
