@@ -4,7 +4,7 @@ Pure and ROS-free: the ``simulator`` node feeds :class:`Timekeeper` the commands
 the states it publishes and the wall clock, and does what it answers. Tests drive it with a
 fake clock.
 
-The rule (README, "Time"): simulated time is the only time that changes the physics, the
+The rule (docs/time.md): simulated time is the only time that changes the physics, the
 control or a reported figure; the wall clock only *paces* simulated time and decides when to
 *report* that something is late or missing.
 

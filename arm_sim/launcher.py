@@ -56,7 +56,7 @@ def node_env(domain_id: int | None = None, localhost: bool = True) -> dict[str, 
     """Environment for a node process.
 
     Drops the ROS wheels' bootstrap guard so a child of another venv's process re-resolves
-    its own libraries (README: ROS 2 from PyPI wheels), and pins the DDS domain.
+    its own libraries (docs/ros.md: ROS 2 from PyPI wheels), and pins the DDS domain.
     """
     env = dict(os.environ)
     if env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None) is not None:

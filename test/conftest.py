@@ -260,14 +260,14 @@ class Ros:
         """:meth:`wait_for` after restarting ``node``; if it times out while ``stuck()``
         (the restarted loop never left its first state), the test is marked xfail: Fast
         DDS can leave a node restarted beside running peers deaf to them
-        (eProsima/Fast-DDS#5053; README, Known limitations), which is not arm_sim's
+        (eProsima/Fast-DDS#5053; docs/limitations.md), which is not arm_sim's
         behaviour under test. Any other timeout fails as usual."""
         try:
             return self.wait_for(condition, timeout, what)
         except pytest.fail.Exception:
             if stuck():
                 pytest.xfail(f'Fast DDS left the restarted {node} deaf to its peers '
-                             '(eProsima/Fast-DDS#5053; README: Known limitations)')
+                             '(eProsima/Fast-DDS#5053; docs/limitations.md)')
             raise
 
     def pause_simulator_now(self, diags: list, node: str = '/simulator') -> float:
