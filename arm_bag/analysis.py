@@ -46,16 +46,9 @@ per-joint values are lists in ``joint_names`` order.
   - ``index``, ``mode`` ("regulation" | "straight_line" | null when there is no
     trajectory), ``start`` s (since the first joint state of the run), ``duration`` s,
     ``samples``, ``reference`` ("reference_topic" | "set_point" | null), ``set_point`` [rad]
-  - ``tracking_rms``, ``tracking_max``, ``final_error`` [rad per joint]
-  - ``settling_time`` [s per joint], ``settling_time_overall`` s, ``overshoot`` [% per
-    joint] (regulation only, else null)
-  - ``line_start``, ``line_end`` [x, y m]; ``deviation_max``, ``deviation_rms`` m: largest
-    and RMS distance of the tip from the segment ``line_start``-``line_end``;
-    ``line_overshoot_end`` m: how far the tip went past ``line_end`` along the line,
-    ``line_overshoot_start`` m: how far before ``line_start`` (both >= 0; straight_line
-    only, else null)
-  - ``torque_peak``, ``torque_rms`` [N m per joint], ``saturated_fraction`` [per joint],
-    ``energy`` J
+  - ``line_start``, ``line_end`` [x, y m] (straight_line only, else null)
+  - every metric of :data:`arm_bag.metrics.METRICS`, by its name (unit, per joint or not,
+    meaning: that table; null where undefined, e.g. settling time on a line)
 """
 
 from __future__ import annotations
@@ -63,6 +56,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -80,7 +74,8 @@ class NothingToAnalyse(Exception):
 
 @dataclass
 class Segment:
-    """Metrics of one segment (see the module docstring for the meaning of each)."""
+    """One segment: where it is, and its metrics by name (:data:`arm_bag.metrics.METRICS`:
+    ``seg.tracking_rms`` etc. read them; None where undefined)."""
 
     index: int
     mode: str | None
@@ -89,24 +84,22 @@ class Segment:
     samples: int
     reference: str | None = None
     set_point: list | None = None
-    tracking_rms: list | None = None
-    tracking_max: list | None = None
-    final_error: list | None = None
-    settling_time: list | None = None
-    settling_time_overall: float | None = None
-    overshoot: list | None = None
     line_start: list | None = None
     line_end: list | None = None
-    deviation_max: float | None = None
-    deviation_rms: float | None = None
-    line_overshoot_end: float | None = None
-    line_overshoot_start: float | None = None
-    torque_peak: list | None = None
-    torque_rms: list | None = None
-    saturated_fraction: list | None = None
-    energy: float | None = None
+    values: dict = field(default_factory=dict)  # metric name -> JSON-ready value
     # arrays for plotting (not in to_dict)
     series: dict = field(default_factory=dict, repr=False)
+
+    def __getattr__(self, name: str) -> Any:
+        if name in metrics.METRIC_NAMES:
+            return self.__dict__.get('values', {}).get(name)
+        raise AttributeError(f'{type(self).__name__} has no attribute {name!r}')
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the place fields, then every metric of the table (None: undefined)."""
+        out = {k: v for k, v in asdict(self).items() if k not in ('values', 'series')}
+        out.update({name: self.values.get(name) for name in metrics.METRIC_NAMES})
+        return out
 
 
 @dataclass
@@ -126,9 +119,8 @@ class Report:
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary (keys documented in the module docstring)."""
-        out = asdict(self)
-        for seg in out['segments']:
-            seg.pop('series', None)
+        out = {k: v for k, v in asdict(self).items() if k != 'segments'}
+        out['segments'] = [seg.to_dict() for seg in self.segments]
         return _clean(out)
 
 
@@ -323,30 +315,25 @@ def actuated(names) -> np.ndarray:
     return np.array([f'{n}_motor' not in listed for n in names], dtype=bool)
 
 
-def _finite_rows(*arrays: np.ndarray) -> np.ndarray:
-    """(N,) bool: the rows finite in every (N, J) array (column by column: faster than
-    ``isfinite(a).all(axis=1)`` on a few columns, the same result)."""
-    ok = np.ones(len(arrays[0]), bool)
-    for a in arrays:
-        for j in range(a.shape[1]):
-            ok &= np.isfinite(a[:, j])
-    return ok
+_finite_rows = metrics.finite_rows
+
+
+def _json(values: dict) -> dict:
+    """Metric values as the report holds them: per-joint arrays as lists (NaN: None)."""
+    return {k: _list(v) if isinstance(v, (np.ndarray, list)) else v for k, v in values.items()}
 
 
 def _torque(effort, position, limits, sl, names) -> dict:
     """Torque figures of the states ``sl``; the energy is the work of the torques the
     segment's states were answered with: the periods starting at its states, so the one
     ending at the next segment's first state too (segments add up to the run)."""
-    stats = metrics.torque_stats(effort[sl], limits)
     driven = actuated(names)
     held = slice(sl.start, None if sl.stop is None else sl.stop + 1)
     if driven.all():  # no copies: the same values either way
-        e, q = effort[held], position[held]
+        work = effort[held], position[held]
     else:
-        e, q = effort[held][:, driven], position[held][:, driven]
-    energy = metrics.energy_delivered(e, q)
-    return {'torque_peak': _list(stats['peak']), 'torque_rms': _list(stats['rms']),
-            'saturated_fraction': _list(stats['saturated_fraction']), 'energy': energy}
+        work = effort[held][:, driven], position[held][:, driven]
+    return _json(metrics.segment_metrics(effort=effort[sl], effort_limits=limits, work=work))
 
 
 def _path_for(bag: BagData, log_time: int, nxt: int | None,
@@ -371,7 +358,7 @@ def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
     ts = t[sl]
     seg = Segment(index=k, mode=None, start=float(ts[0]), duration=float(ts[-1] - ts[0]),
                   samples=len(ts))
-    seg.__dict__.update(_torque(js.effort, js.position, limits, sl, js.names))
+    seg.values.update(_torque(js.effort, js.position, limits, sl, js.names))
     seg.series = {'t': ts - ts[0], 'q': q, 'effort': js.effort[sl]}
     set_point = None
     points = None
@@ -388,7 +375,6 @@ def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
             points = arm.forward_kinematics(traj.positions)
         straight = points is not None and metrics.is_straight_line(points)
         seg.mode = 'straight_line' if straight else 'regulation'
-    # tracking
     desired = None
     if ref is not None:
         desired = ref[sl]
@@ -396,41 +382,24 @@ def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
     elif set_point is not None:
         desired = np.broadcast_to(set_point, q.shape)
         seg.reference = 'set_point'
-    if desired is not None:
-        ok = _finite_rows(desired, q)
-        if ok.any():
-            err = metrics.tracking_errors(q - desired if ok.all() else q[ok] - desired[ok])
-            seg.tracking_rms, seg.tracking_max = _list(err['rms']), _list(err['max'])
-            seg.final_error = _list(err['final'])
-            seg.series['ref'] = desired
-        else:
-            warnings.append(f'segment {k}: no joint state has a matching reference')
-    if seg.mode == 'regulation':
-        assert set_point is not None  # a segment has a mode only with a trajectory
-        q0 = q[0]
-        st = [metrics.settling_time(seg.series['t'], q[:, j], q0[j], set_point[j])
-              for j in range(q.shape[1])]
-        seg.settling_time = st
-        moving = [s for s, j in zip(st, range(q.shape[1])) if q0[j] != set_point[j]]
-        seg.settling_time_overall = (None if not moving or any(s is None for s in moving)
-                                     else max(s for s in moving if s is not None))
-        seg.overshoot = [metrics.overshoot(q[:, j], q0[j], set_point[j])
-                         for j in range(q.shape[1])]
+    line = xy = None
     if seg.mode == 'straight_line' and arm is not None:
         assert points is not None  # straight means the points make a line
-        a, b = points[0], points[-1]
+        line = points[0], points[-1]
         measured = _finite_rows(q) & (js.stamp[sl] >= line_from)
         xy = arm.forward_kinematics(q[measured])
-        dev = metrics.segment_deviation(xy, a, b)
-        before, past = metrics.overshoot_along_line(xy, a, b)
-        seg.line_start, seg.line_end = _list(a), _list(b)
-        if len(dev):
-            seg.deviation_max = float(dev.max())
-            seg.deviation_rms = float(np.sqrt(np.mean(dev * dev)))
-            seg.line_overshoot_end = float(past.max())
-            seg.line_overshoot_start = float(before.max())
-        seg.series.update(xy=xy, deviation=dev, line=(a, b))
+        seg.line_start, seg.line_end = _list(line[0]), _list(line[1])
+        seg.series.update(xy=xy, line=line)
     elif arm is not None:
         finite = _finite_rows(q)
         seg.series['xy'] = arm.forward_kinematics(q if finite.all() else q[finite])
+    found = metrics.segment_metrics(
+        seg.series['t'], q, desired=desired, line=line, xy=xy, series=seg.series,
+        set_point=set_point if seg.mode == 'regulation' else None)
+    if desired is not None:
+        if 'tracking_rms' in found:
+            seg.series['ref'] = desired
+        else:
+            warnings.append(f'segment {k}: no joint state has a matching reference')
+    seg.values.update(_json(found))
     return seg

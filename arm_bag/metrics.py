@@ -1,4 +1,12 @@
-"""Performance metrics of a recorded arm run: pure functions over numpy arrays.
+"""Performance metrics of an arm run: the one table of them, and pure functions over numpy
+arrays.
+
+:data:`METRICS` is the single source of every per-segment metric: its name (the JSON field
+of ``arm-sim analyze --json``, the attribute of :class:`~arm_bag.analysis.Segment`, the
+sweep's column, ``<name>_<j>`` per joint), unit, whether it is per joint, its format and
+meaning. :func:`segment_metrics` computes them for one segment, for ``analyze`` and for
+the sweeps alike. To add a metric: add a :class:`Metric` row and its computation in
+:func:`segment_metrics` -- this file only (docs/architecture.md, "Add a metric").
 
 Shapes: ``N`` samples, ``J`` joints. Times in s, angles in rad, torques in N m,
 positions in m. Errors are actual minus desired.
@@ -6,7 +14,144 @@ positions in m. Errors are actual minus desired.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One per-segment metric: ``name``, report ``label``, ``unit``, per joint or not, the
+    report's number ``fmt`` (a format spec, or ``pct`` for a fraction shown in percent),
+    when it is defined (``all``, ``regulation``, ``straight_line``) and its ``meaning``."""
+
+    name: str
+    label: str
+    unit: str
+    per_joint: bool
+    fmt: str
+    when: str
+    meaning: str
+
+
+#: Every per-segment metric, in report order.
+METRICS: tuple[Metric, ...] = (
+    Metric('tracking_rms', 'tracking RMS', 'rad', True, '.4g', 'all',
+           'RMS of the joint position minus the reference'),
+    Metric('tracking_max', 'tracking max', 'rad', True, '.4g', 'all',
+           'largest |joint position minus the reference|'),
+    Metric('final_error', 'final error', 'rad', True, '.3g', 'all',
+           'joint position minus the reference at the last sample (signed)'),
+    Metric('settling_time', 'settling time', 's', True, '.3f', 'regulation',
+           'from the segment start until the joint stays within 2% of its step of the set '
+           'point (none if it never does)'),
+    Metric('settling_time_overall', 'settling overall', 's', False, '.3f', 'regulation',
+           'the largest settling time of the joints that move'),
+    Metric('overshoot', 'overshoot', '%', True, '.2f', 'regulation',
+           'largest excursion past the set point, in percent of the step'),
+    Metric('deviation_max', 'off segment max', 'm', False, '.3g', 'straight_line',
+           "largest distance of the tip from the commanded segment"),
+    Metric('deviation_rms', 'off segment RMS', 'm', False, '.3g', 'straight_line',
+           'RMS distance of the tip from the commanded segment'),
+    Metric('line_overshoot_end', 'past line end', 'm', False, '.3g', 'straight_line',
+           'how far the tip went beyond the end of the segment, along it'),
+    Metric('line_overshoot_start', 'before line start', 'm', False, '.3g', 'straight_line',
+           'how far the tip went back before the start of the segment, along it'),
+    Metric('torque_peak', 'torque peak', 'N m', True, '.2f', 'all',
+           'largest |applied torque|'),
+    Metric('torque_rms', 'torque RMS', 'N m', True, '.2f', 'all', 'RMS applied torque'),
+    Metric('saturated_fraction', 'saturated', '%', True, 'pct', 'all',
+           'fraction of the samples at the effort limit'),
+    Metric('energy', 'energy', 'J', False, '.3f', 'all',
+           'work of the held torques, sum of tau_k . (q_k - q_(k-1)) over the periods '
+           'they were held (exact: change in mechanical energy plus the damping loss)'),
+)
+#: The metrics' names, in order.
+METRIC_NAMES = tuple(m.name for m in METRICS)
+#: The per-joint ones.
+PER_JOINT_METRICS = tuple(m.name for m in METRICS if m.per_joint)
+
+
+def metrics_markdown() -> str:
+    """The docs' table of the metrics (docs/bags.md holds it verbatim; a test checks)."""
+    rows = ['| metric | unit | per joint | defined for | meaning |', '|---|---|---|---|---|']
+    rows += [f"| `{m.name}` | {m.unit} | {'yes' if m.per_joint else ''} | {m.when} | "
+             f'{m.meaning} |' for m in METRICS]
+    return '\n'.join(rows) + '\n'
+
+
+def finite_rows(*arrays: np.ndarray) -> np.ndarray:
+    """(N,) bool: the rows finite in every (N, J) array (column by column: faster than
+    ``isfinite(a).all(axis=1)`` on a few columns, the same result)."""
+    ok = np.ones(len(arrays[0]), bool)
+    for a in arrays:
+        for j in range(a.shape[1]):
+            ok &= np.isfinite(a[:, j])
+    return ok
+
+
+def segment_metrics(t=None, q=None, *, desired=None, set_point=None, line=None, xy=None,
+                    effort=None, effort_limits=None, work=None,
+                    series: dict | None = None) -> dict[str, Any]:
+    """Every metric of :data:`METRICS` the inputs define, by name, for one segment.
+
+    Parameters
+    ----------
+    t : (N,) s from the segment's start; q : (N, J) rad, the joint positions (both needed
+        with ``desired`` or ``set_point`` only).
+    desired : (N, J) rad or None -- the reference at each sample (tracking metrics, over
+        the rows finite in both).
+    set_point : (J,) rad or None -- a regulation's goal (settling time and overshoot).
+    line : ((2,), (2,)) m or None, with ``xy`` (M, 2) m the tip positions measured against
+        it -- a straight line's ends (deviation and overshoot along the line).
+    effort : (N, J) N m, with ``effort_limits`` (J,) N m -- the applied torque (peak, RMS,
+        saturated fraction).
+    work : ((K, J) N m, (K, J) rad) or None -- the held torques and the positions over
+        the periods they were held, for the energy (:func:`energy_delivered`).
+    series : a dict to receive the arrays behind the figures, for plots (``deviation``:
+        (M,) m), or None.
+
+    Returns
+    -------
+    dict of name -> value: per-joint metrics as (J,) arrays (a None item: undefined),
+    the others as floats or None.
+    """
+    out: dict[str, Any] = {}
+    if desired is not None or set_point is not None:
+        q = np.asarray(q, dtype=np.float64)
+    if desired is not None:
+        ok = finite_rows(desired, q)
+        if ok.any():
+            err = tracking_errors(q - desired if ok.all() else q[ok] - desired[ok])
+            out.update(tracking_rms=err['rms'], tracking_max=err['max'],
+                       final_error=err['final'])
+    if set_point is not None:
+        q0, joints = q[0], range(q.shape[1])
+        st = [settling_time(t, q[:, j], q0[j], set_point[j]) for j in joints]
+        moving = [st[j] for j in joints if q0[j] != set_point[j]]
+        out['settling_time'] = st
+        out['settling_time_overall'] = (None if not moving or any(x is None for x in moving)
+                                        else max(x for x in moving if x is not None))
+        out['overshoot'] = [overshoot(q[:, j], q0[j], set_point[j]) for j in joints]
+    if line is not None and xy is not None:
+        a, b = line
+        dev = segment_deviation(xy, a, b)
+        if series is not None:
+            series['deviation'] = dev
+        if len(dev):
+            before, past = overshoot_along_line(xy, a, b)
+            out.update(deviation_max=float(dev.max()),
+                       deviation_rms=float(np.sqrt(np.mean(dev * dev))),
+                       line_overshoot_end=float(past.max()),
+                       line_overshoot_start=float(before.max()))
+    if effort is not None:
+        stats = torque_stats(effort, effort_limits)
+        out.update(torque_peak=stats['peak'], torque_rms=stats['rms'],
+                   saturated_fraction=stats['saturated_fraction'])
+    if work is not None:
+        out['energy'] = energy_delivered(*work)
+    return out
 
 
 def _as2d(name: str, x, n: int | None = None) -> np.ndarray:

@@ -3,28 +3,16 @@
 from __future__ import annotations
 
 from arm_bag.analysis import Report, Segment
+from arm_bag.metrics import METRICS
 
 _ROWS: tuple[tuple[str, str, str], ...] = (
-    # (label, Segment attribute, format)
+    # (label, Segment attribute, format): where the segment is, then every metric of the
+    # table (arm_bag.metrics.METRICS), labelled with its unit.
     ('mode', 'mode', 's'),
     ('duration [s]', 'duration', '.3f'),
     ('samples', 'samples', 'd'),
     ('reference', 'reference', 's'),
-    ('tracking RMS [rad]', 'tracking_rms', '.4g'),
-    ('tracking max [rad]', 'tracking_max', '.4g'),
-    ('final error [rad]', 'final_error', '.3g'),
-    ('settling time [s]', 'settling_time', '.3f'),
-    ('settling overall [s]', 'settling_time_overall', '.3f'),
-    ('overshoot [%]', 'overshoot', '.2f'),
-    ('off segment max [m]', 'deviation_max', '.3g'),
-    ('off segment RMS [m]', 'deviation_rms', '.3g'),
-    ('past line end [m]', 'line_overshoot_end', '.3g'),
-    ('before line start [m]', 'line_overshoot_start', '.3g'),
-    ('torque peak [N m]', 'torque_peak', '.2f'),
-    ('torque RMS [N m]', 'torque_rms', '.2f'),
-    ('saturated [%]', 'saturated_fraction', 'pct'),
-    ('energy [J]', 'energy', '.3f'),
-)
+) + tuple((f'{m.label} [{m.unit}]', m.name, m.fmt) for m in METRICS)
 
 
 def _fmt(value, fmt: str) -> str:

@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from arm_bag import metrics
-from arm_bag.analysis import analyze
+from arm_bag.analysis import Segment, analyze
 from arm_bag.cdr import decode_joint_states_bulk, encode_joint_state
 from arm_bag.reader import BagError, read_bag
 from arm_bag.synthetic import open_bag, write_run
@@ -466,3 +466,32 @@ def test_energy_is_the_exact_work_of_the_held_torques_change_in_energy_plus_damp
                 method='DOP853', rtol=1e-12, atol=1e-12)
             x, loss = sol.y[:4, -1], loss + sol.y[4, -1]
         assert abs(work - (change + loss)) < 1e-8, (work, change, loss)
+
+
+def test_the_report_rows_json_fields_and_sweep_columns_all_come_from_the_metric_table():
+    """One table, :data:`arm_bag.metrics.METRICS`: each metric is a report row labelled with
+    its unit, a JSON field of every segment, and the sweep's column(s), in the table's
+    order; the sweep computes them with the same function as ``analyze``."""
+    from arm_bag import metrics as m
+    from arm_bag.report import _ROWS
+    from arm_sim.sweep import METRIC_COLUMNS
+    from arm_sim.sweep import metrics as sweep_metrics
+
+    assert [r[1] for r in _ROWS][-len(m.METRICS):] == list(m.METRIC_NAMES)
+    assert all(f'[{x.unit}]' in r[0] for x, r in zip(m.METRICS, _ROWS[-len(m.METRICS):]))
+    expanded = [c for x in m.METRICS
+                for c in ((f'{x.name}_1', f'{x.name}_2') if x.per_joint else (x.name,))]
+    assert list(METRIC_COLUMNS) == expanded
+    seg = Segment(index=0, mode=None, start=0.0, duration=0.0, samples=0)
+    assert list(seg.to_dict())[-len(m.METRICS):] == list(m.METRIC_NAMES)
+    assert sweep_metrics.metrics.segment_metrics is m.segment_metrics
+
+
+def test_the_docs_metric_table_is_the_metric_tables():
+    from arm_bag.metrics import metrics_markdown
+    text = (Path(__file__).resolve().parents[1] / 'docs' / 'bags.md').read_text()
+    marker = '<!-- generated: arm_bag.metrics.metrics_markdown -->\n'
+    assert marker in text, 'docs/bags.md lacks the generated metric table'
+    block = text.split(marker, 1)[1].split('<!-- end generated -->', 1)[0]
+    assert block == metrics_markdown(), ('docs/bags.md is out of date; replace its block '
+                                         f'with:\n{metrics_markdown()}')

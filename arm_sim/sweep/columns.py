@@ -5,19 +5,17 @@ from __future__ import annotations
 
 import math
 
+from arm_bag.metrics import METRIC_NAMES, PER_JOINT_METRICS
+
 #: Per-joint metric and input columns (written ``<name>_1``, ``<name>_2``).
 PER_JOINT = ('kp', 'kd', 'ki', 'i_clamp', 'effort_limit', 'planned_peak_torque',
-             'tracking_rms', 'tracking_max', 'final_error', 'settling_time', 'overshoot',
-             'torque_peak', 'torque_rms', 'saturated_fraction')
+             *PER_JOINT_METRICS)
 _INPUTS = ('index', 'task', 'start_x', 'start_y', 'goal_x', 'goal_y', 'elbow',
            'duration_requested', 'time_scaling', 'regulation_profile', 'feasibility', 'law',
            'kp', 'kd', 'ki', 'i_clamp', 'payload', 'mass_error', 'length_error',
            'control_rate', 'physics_step', 'effort_limit', 'hold')
 _OUTCOME = ('status', 'message', 'duration', 'planned_peak_torque', 'samples')
-_METRICS = ('tracking_rms', 'tracking_max', 'final_error', 'settling_time',
-            'settling_time_overall', 'overshoot', 'deviation_max', 'deviation_rms',
-            'line_overshoot_end', 'line_overshoot_start', 'torque_peak', 'torque_rms',
-            'saturated_fraction', 'energy')
+_METRICS = METRIC_NAMES  # the metric table's, in its order (arm_bag.metrics.METRICS)
 #: Every column, in order.
 COLUMNS = tuple(c for name in _INPUTS + _OUTCOME + _METRICS
                 for c in ((f'{name}_1', f'{name}_2') if name in PER_JOINT else (name,)))

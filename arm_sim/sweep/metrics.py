@@ -54,7 +54,8 @@ def new_row(index: int, s: Scenario, planned: Planned) -> dict:
 
 def segment_metrics(t: np.ndarray, q: np.ndarray, qd: np.ndarray, effort: np.ndarray,
                     q_des: np.ndarray, planned: Planned, limits) -> dict[str, Any]:
-    """The ``arm-sim analyze`` metrics of one segment, from :mod:`arm_bag.metrics`.
+    """The ``arm-sim analyze`` metrics of one segment: :func:`arm_bag.metrics.segment_metrics`,
+    the function ``analyze`` uses.
 
     Parameters
     ----------
@@ -69,32 +70,14 @@ def segment_metrics(t: np.ndarray, q: np.ndarray, qd: np.ndarray, effort: np.nda
     dict keyed by the metric names of :data:`~arm_sim.sweep.columns.COLUMNS` (per joint:
     (2,) lists).
     """
-    out: dict[str, Any] = {}
-    err = metrics.tracking_errors(q - q_des)
-    out.update(tracking_rms=err['rms'], tracking_max=err['max'], final_error=err['final'])
     if planned.line is None:
-        sp = planned.set_point
-        assert sp is not None  # a plan was made
-        st = [metrics.settling_time(t, q[:, j], q[0, j], sp[j]) for j in range(2)]
-        moving = [st[j] for j in range(2) if q[0, j] != sp[j]]
-        out['settling_time'] = st
-        out['settling_time_overall'] = (None if not moving or any(x is None for x in moving)
-                                        else max(x for x in moving if x is not None))
-        out['overshoot'] = [metrics.overshoot(q[:, j], q[0, j], sp[j]) for j in range(2)]
-    else:
-        a, b = planned.line
-        xy = ROBOT.forward_kinematics(q)
-        dev = metrics.segment_deviation(xy, a, b)
-        before, past = metrics.overshoot_along_line(xy, a, b)
-        out.update(deviation_max=float(dev.max()),
-                   deviation_rms=float(np.sqrt(np.mean(dev * dev))),
-                   line_overshoot_end=float(past.max()),
-                   line_overshoot_start=float(before.max()))
-    stats = metrics.torque_stats(effort, limits)
-    out.update(torque_peak=stats['peak'], torque_rms=stats['rms'],
-               saturated_fraction=stats['saturated_fraction'],
-               energy=metrics.energy_delivered(effort, q))
-    return out
+        assert planned.set_point is not None  # a plan was made
+        return metrics.segment_metrics(t, q, desired=q_des, set_point=planned.set_point,
+                                       effort=effort, effort_limits=limits,
+                                       work=(effort, q))
+    return metrics.segment_metrics(t, q, desired=q_des, line=planned.line,
+                                   xy=ROBOT.forward_kinematics(q), effort=effort,
+                                   effort_limits=limits, work=(effort, q))
 
 
 def finish_row(row: dict, s: Scenario, planned: Planned, run: Run) -> dict:
