@@ -40,7 +40,7 @@ class ParamSpec:
     allow_inf: bool = False
     #: One value per joint of the robot (the model sets how many): not given, the default
     #: for ``n`` joints is :meth:`default_for`; given, it must have ``n`` values (an empty
-    #: default, as the controller's ``model.*``, also accepts an empty list: "unset").
+    #: default, as the controller's ``control_model.*``, also accepts an empty list: "unset").
     per_joint: bool = False
     #: What :meth:`default_for` puts on joints beyond the default's length: a value, or a
     #: function of the 0-based joint index; None repeats the default's last value.

@@ -63,7 +63,7 @@ restarted controller holds where the arm is.
 '''
 
 EARLY_WAIT = 5.0  # s (wall): a trajectory received before any joint state waits this long
-MODEL_KEYS = tuple(k for k in TwoLinkArm.PARAMETERS if k != 'gravity')  # model.<key>
+MODEL_KEYS = tuple(k for k in TwoLinkArm.PARAMETERS if k != 'gravity')  # control_model.<key>
 # (every model of arm_dynamics.models takes these names)
 
 CONTROL_PARAMS: tuple[ParamSpec, ...] = (
@@ -89,12 +89,12 @@ CONTROL_PARAMS: tuple[ParamSpec, ...] = (
               'is a time jump: the trajectory is dropped and the measured position held',
               's', minimum=0.0, strict_min=True, maximum=1e6, read_only=True),
 ) + tuple(
-    ParamSpec(f'model.{k}', 'doubles', [], f'Controller model {k.replace("_", " ")}; '
+    ParamSpec(f'control_model.{k}', 'doubles', [], f'Controller model {k.replace("_", " ")}; '
               'empty = the robot parameter (set to study model mismatch)',
               next(s.unit for s in ROBOT_PARAMS if s.name == k), minimum=0.0,
               maximum=1e4, read_only=True, per_joint=True)
     for k in MODEL_KEYS
-) + (ParamSpec('model.gravity', 'double', -1.0, 'Controller model gravity; negative = the '
+) + (ParamSpec('control_model.gravity', 'double', -1.0, 'Controller model gravity; negative = the '
                'robot parameter', 'm/s^2', maximum=100.0, read_only=True),)
 
 
@@ -117,8 +117,9 @@ class ControllerNode(Node):
     def __init__(self) -> None:
         super().__init__('controller', cli_args=clock_in_namespace())
         p = declare_parameters(self, ROBOT_PARAMS + CONTROL_PARAMS, joints=joint_count)
-        model_args = {k: (p[f'model.{k}'] or p[k]) for k in MODEL_KEYS}
-        model_args['gravity'] = p['gravity'] if p['model.gravity'] < 0 else p['model.gravity']
+        model_args = {k: (p[f'control_model.{k}'] or p[k]) for k in MODEL_KEYS}
+        model_args['gravity'] = (p['gravity'] if p['control_model.gravity'] < 0
+                                 else p['control_model.gravity'])
         model_args['model'] = p['model']
         try:
             model = robot_model(model_args)

@@ -135,3 +135,29 @@ def test_ros2_param_dump_output_loads_back_unchanged(node, ros, launch, tmp_path
     after = parameters(ros, node)
     assert after == before, {k: (before.get(k), after.get(k)) for k in before.keys() | after
                              if before.get(k) != after.get(k)}
+
+
+CHAIN = ('model:=planar_chain', 'link_lengths:=[1.0, 0.8, 0.6]')
+
+
+@pytest.mark.parametrize('node', ['simulator', 'controller', 'planner', 'recorder'])
+def test_a_per_joint_parameter_of_the_wrong_length_is_refused_naming_it(node, tmp_path):
+    proc = NodeProcess(node, params_file=CONFIG, log_path=tmp_path / f'{node}.log',
+                       domain_id=0, extra_args=ros_args(*CHAIN, 'joint_damping:=[0.1, 0.2]'))
+    assert proc.proc.wait(30) == 2, f'{node} started with 2 damping values for 3 joints'
+    lines = proc.output().strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(node), lines
+    assert 'joint_damping has 2 values but the robot has 3 joints' in lines[0], lines
+
+
+def test_per_joint_parameters_not_given_are_declared_sized_for_the_chain(ros, launch):
+    """With config/arm.yaml's two-joint lists replaced only where given: a 3-link chain
+    whose other lists are not given shows, to ``ros2 param get``, each joint's default."""
+    launch('controller', extra_args=ros_args(*CHAIN))
+    wait_ready(ros, 'controller')
+    got = parameters(ros, 'controller')
+    assert got['joint_names'][1] == ['joint1', 'joint2', 'joint3']
+    assert got['joint_damping'][1] == [0.0, 0.0, 0.0]
+    assert got['effort_limits'][1] == [60.0, 20.0, 20.0]
+    assert got['gains.kp'][1] == [100.0, 60.0, 60.0]
+    assert got['control_model.link_masses'][1] == []
