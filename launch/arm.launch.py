@@ -20,6 +20,13 @@ frames base_link, link1, link2 and tool0 from ``joint_states``; ``rviz:=true`` a
 and RViz 2 with config/rviz/arm.rviz. Both run in ``namespace`` with ``/tf`` remapped to
 ``tf`` there, so two arms keep two trees.
 
+Failures and signals: a launch that asks for a package this machine does not have
+(``robot_state_publisher:=true`` or ``rviz:=true`` without it) is refused before any node
+starts, naming the package. Every arm_sim node is told the launch process's pid
+(``ARM_SIM_PARENT_PID``) and asks the kernel for SIGTERM when that process dies, by any
+signal (SIGKILL included): no node outlives its ``ros2 launch``, and the recorder closes
+its bag.
+
 ``visualizer:=true`` (the default) starts the visualizer: ``markers`` (the arm, its trail, the
 goal and the planned path) and ``robot_description``; when robot_state_publisher runs, that
 publishes ``robot_description`` and the visualizer leaves it out.
@@ -30,7 +37,7 @@ from __future__ import annotations
 import os
 from datetime import datetime
 
-from ament_index_python.packages import get_package_share_directory
+from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.conditions import IfCondition
 from launch.launch_context import LaunchContext
@@ -39,6 +46,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
+from arm_common.process import PARENT_ENV  # nodes die with the process that started them
 from arm_dynamics.timing import TIMING_MODES  # the one list of modes
 from arm_sim.urdf_cli import urdf_for_params_file  # the URDF arm-sim urdf prints
 
@@ -47,6 +55,10 @@ PACKAGE = 'arm_sim'
 CLOCK_REMAP = [('/clock', 'clock')]
 # The same for the transform tree of robot_state_publisher and RViz.
 TF_REMAP = [('/tf', 'tf'), ('/tf_static', 'tf_static')]
+
+#: Given to every arm_sim node: this (the ros2 launch) process's pid; each node asks the
+#: kernel for SIGTERM when it dies (arm_common.process.watch_parent).
+PARENT = {PARENT_ENV: str(os.getpid())}
 
 namespace = LaunchConfiguration('namespace')
 params_file = LaunchConfiguration('params_file')
@@ -130,10 +142,11 @@ def _loop(context: LaunchContext) -> list[Node]:
     if composed.perform(context) == 'true':
         return [Node(package=PACKAGE, executable='composed', namespace=namespace,
                      parameters=[params_file], ros_arguments=modes, remappings=CLOCK_REMAP,
-                     output='screen')]
+                     output='screen', additional_env=PARENT)]
     return [Node(package=PACKAGE, executable='simulator', name='simulator',
                  namespace=namespace, parameters=[params_file, {'use_sim_time': False}],
-                 ros_arguments=modes, remappings=CLOCK_REMAP, output='screen'),
+                 ros_arguments=modes, remappings=CLOCK_REMAP, output='screen',
+                 additional_env=PARENT),
             _sim_time_node('controller')]
 
 
@@ -195,12 +208,36 @@ def _sim_time_node(executable: str, **kwargs) -> Node:
                 parameters=[params_file,
                             {'use_sim_time': ParameterValue(use_sim_time, value_type=bool)},
                             *extra],
-                remappings=CLOCK_REMAP, output='screen', **kwargs)
+                remappings=CLOCK_REMAP, output='screen', additional_env=PARENT, **kwargs)
+
+
+def _optional_packages(context: LaunchContext) -> list:
+    """Refuse, before any node starts, a launch asking for a package this machine lacks
+    (``robot_state_publisher:=true`` or ``rviz:=true``): launch stops with the reason and
+    nothing is left running."""
+    wanted = []
+    if rviz.perform(context) == 'true':
+        wanted = ['robot_state_publisher', 'rviz2']
+    elif robot_state_publisher.perform(context) == 'true':
+        wanted = ['robot_state_publisher']
+    missing = []
+    for package in wanted:
+        try:
+            get_package_share_directory(package)
+        except PackageNotFoundError:
+            missing.append(package)
+    if missing:
+        raise RuntimeError(
+            f"{', '.join(missing)} not installed (apt install "
+            f"{' '.join('ros-jazzy-' + m.replace('_', '-') for m in missing)}), which "
+            'robot_state_publisher:=true / rviz:=true need; no node was started')
+    return []
 
 
 def generate_launch_description() -> LaunchDescription:
     return LaunchDescription([
         *_arguments(),
+        OpaqueFunction(function=_optional_packages),  # first: before any node starts
         OpaqueFunction(function=_loop),
         _sim_time_node('planner'),
         _sim_time_node('recorder',

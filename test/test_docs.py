@@ -251,3 +251,43 @@ def test_the_link_check_reports_file_line_and_link_of_each_broken_link(tmp_path)
         'README.md:13: [out](../elsewhere.md): ../elsewhere.md is outside the repository',
         'README.md:14: [ref](docs/nothing.md): docs/nothing.md does not exist',
     ]
+
+
+def ros_install_lines() -> list[str]:
+    """The command lines of docs/ros.md's "Use with a real ROS 2 Jazzy install" block."""
+    text = (DOCS / 'ros.md').read_text()
+    block = text.split('## Use with a real ROS 2 Jazzy install', 1)[1]
+    block = block.split('```sh\n', 1)[1].split('```', 1)[0]
+    return [line.split('#', 1)[0].strip() for line in block.splitlines() if line.strip()]
+
+
+def test_the_ros_install_commands_name_executables_files_and_arguments_that_exist():
+    """The lines need a ROS install to run; what they name is checked here: every
+    ``ros2 run arm_sim X`` is a console script, every installed params file is shipped, every
+    ``ros2 launch`` argument is declared, and ``ros2 topic pub --once`` waits for its
+    subscribers (``-w``)."""
+    import ast
+    import re
+    setup = (ROOT / 'setup.py').read_text()
+    scripts = set(re.findall(r"'([\w-]+) = [\w.]+:main'", setup))
+    launch = (ROOT / 'launch' / 'arm.launch.py').read_text()
+    declared = {node.args[0].value for node in ast.walk(ast.parse(launch))
+                if isinstance(node, ast.Call) and getattr(node.func, 'id', '') ==
+                'DeclareLaunchArgument'}
+    lines = ros_install_lines()
+    runs = [line for line in lines if line.startswith('ros2 run')]
+    assert len(runs) >= 4, lines
+    for line in lines:
+        words = line.split()
+        if line.startswith('ros2 run'):
+            assert words[2] == 'arm_sim' and words[3] in scripts, line
+            for path in re.findall(r'install/arm_sim/share/arm_sim/(\S+)', line):
+                assert (ROOT / path).is_file(), f'{line}: {path} is not shipped'
+        elif line.startswith('ros2 launch'):
+            assert words[2:4] == ['arm_sim', 'arm.launch.py'], line
+        elif line.startswith('ros2 topic pub'):
+            assert '--once' not in words or '-w' in words, f'{line}: --once without -w'
+    comment = next(line for line in (DOCS / 'ros.md').read_text().splitlines()
+                   if line.startswith('ros2 launch arm_sim'))
+    for name in re.findall(r'(\w+):=', comment):
+        assert name in declared, f'ros2 launch argument {name} is not declared'

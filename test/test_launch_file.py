@@ -33,11 +33,26 @@ class LaunchConfiguration(Recorded):
         return context[self.args[0]]
 
 
+class PackageNotFoundError(KeyError):
+    """ament_index_python's, for the stand-in."""
+
+
+#: Packages the stand-in ament index has (arm_sim's share directory is the repository).
+INSTALLED = {'arm_sim', 'robot_state_publisher', 'rviz2'}
+
+
+def share_directory(package: str) -> str:
+    if package not in INSTALLED:
+        raise PackageNotFoundError(package)
+    return str(ROOT)
+
+
 def stand_ins() -> dict[str, types.ModuleType]:
     mods = {}
     for name, attrs in {
         'ament_index_python': {}, 'launch': {}, 'launch_ros': {},
-        'ament_index_python.packages': {'get_package_share_directory': lambda _: str(ROOT)},
+        'ament_index_python.packages': {'get_package_share_directory': share_directory,
+                                        'PackageNotFoundError': PackageNotFoundError},
         'launch.actions': {'DeclareLaunchArgument': type('DeclareLaunchArgument',
                                                          (Recorded,), {}),
                            'OpaqueFunction': type('OpaqueFunction', (Recorded,), {})},
@@ -179,3 +194,48 @@ def test_timing_mode_choices_are_the_simulators_modes(launch_module):
     from arm_dynamics.timing import TIMING_MODES
 
     assert declared(launch_module)['timing_mode']['choices'] == ['', *TIMING_MODES]
+
+
+def arm_sim_nodes(module, **given: str) -> list:
+    """Every arm_sim node the description starts (two processes, recorder and visualizer
+    on): ``_loop``'s, the planner, the recorder and the visualizer."""
+    context = {'composed': 'false', 'timing_mode': '', 'params_file': str(CONFIG),
+               'rviz': 'false', 'robot_state_publisher': 'false', 'visualizer': 'true',
+               **given}
+    nodes = []
+    for action in module.generate_launch_description().args[0]:
+        if type(action).__name__ == 'OpaqueFunction':
+            nodes += action.kwargs['function'](context)
+        elif type(action).__name__ == 'Node':
+            nodes.append(action)
+    return [n for n in nodes if n.kwargs['package'] == 'arm_sim']
+
+
+@pytest.mark.parametrize('composed', ['false', 'true'])
+def test_every_arm_sim_node_is_told_the_launch_processs_pid_to_die_with_it(launch_module,
+                                                                           composed):
+    import os
+
+    from arm_common.process import PARENT_ENV
+    nodes = arm_sim_nodes(launch_module, composed=composed)
+    assert {n.kwargs['executable'] for n in nodes} >= {'planner', 'recorder', 'visualizer'}
+    for node in nodes:
+        assert node.kwargs['additional_env'] == {PARENT_ENV: str(os.getpid())}, node.kwargs
+
+
+@pytest.mark.parametrize('given, missing', [
+    ({'robot_state_publisher': 'true'}, 'robot_state_publisher'),
+    ({'rviz': 'true'}, 'rviz2'),
+])
+def test_a_missing_optional_package_is_refused_before_any_node_starts(
+        launch_module, monkeypatch, given, missing):
+    everything = INSTALLED
+    monkeypatch.setattr(sys.modules[__name__], 'INSTALLED', everything - {missing})
+    actions = launch_module.generate_launch_description().args[0]
+    first = next(a for a in actions if type(a).__name__ != 'DeclareLaunchArgument')
+    assert first.kwargs['function'].__name__ == '_optional_packages', 'checked first'
+    context = {'rviz': 'false', 'robot_state_publisher': 'false', **given}
+    with pytest.raises(RuntimeError, match=f'{missing} not installed .* no node was started'):
+        first.kwargs['function'](context)
+    monkeypatch.setattr(sys.modules[__name__], 'INSTALLED', everything)
+    assert first.kwargs['function'](context) == [], 'installed: nothing refused'
