@@ -284,3 +284,21 @@ def test_the_controllers_laws_regulate_a_3_link_arm_to_a_planned_goal(ros, launc
     assert not [w for w in report.warnings if 'end-effector' in w], report.warnings
     last = report.segments[-1]
     assert len(last.final_error) == 3 and last.series['xy'].shape[-1] == 2
+
+
+def test_the_live_views_frames_compose_to_the_chains_joints_and_tip():
+    from test_live import compose
+
+    from arm_sim.live import arm_transforms
+    arm = PlanarChain(**CHAINS['n5'])
+    for q in RNG.uniform(-math.pi, math.pi, (50, 5)):
+        tfs = arm_transforms(arm, q)
+        frames = ['base_link', 'link1', 'link2', 'link3', 'link4', 'link5', 'tool0']
+        assert [(t.parent, t.child) for t in tfs] == list(zip(frames, frames[1:]))
+        poses = compose(tfs)
+        points = arm.joint_points(q)
+        for i, frame in enumerate(frames[1:-1]):
+            np.testing.assert_allclose(poses[frame][:2, 3], points[i], atol=1e-12)
+        np.testing.assert_allclose(poses['tool0'][:2, 3], points[-1], atol=1e-12)
+    with pytest.raises(ValueError, match='q must be 5 finite'):
+        arm_transforms(arm, [0.0] * 4)
