@@ -71,7 +71,7 @@ CONTROL_PARAMS: tuple[ParamSpec, ...] = (
         f'{law.name}: {law.formula}' for law in LAW_TABLE.values()), choices=LAWS),
 ) + tuple(
     ParamSpec(f'gains.{g.name}', 'doubles', list(g.default), g.description.capitalize(),
-              g.unit, minimum=0.0, maximum=1e6, per_joint=True)
+              g.unit, minimum=0.0, strict_min=g.positive, maximum=1e6, per_joint=True)
     for g in GAINS
 ) + (
     ParamSpec('update_on', 'string', 'joint_states',
@@ -107,8 +107,8 @@ def _stamp_ns(msg) -> int:
 
 
 def gains_from(p: dict) -> Gains:
-    return Gains(kp=p['gains.kp'], kd=p['gains.kd'], ki=p['gains.ki'],
-                 i_clamp=p['gains.i_clamp'])
+    """The law's gains from the ``gains.*`` parameters (:data:`arm_control.laws.GAINS`)."""
+    return Gains(**{g.name: p[f'gains.{g.name}'] for g in GAINS})
 
 
 class ControllerNode(Node):

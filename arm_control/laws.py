@@ -40,6 +40,7 @@ class GainSpec:
     default: tuple[float, ...]
     unit: str
     description: str
+    positive: bool = False  # > 0 (else >= 0)
 
 
 #: The gains, one source for the controller's parameters, the sweep and the docs.
@@ -55,6 +56,9 @@ GAINS: tuple[GainSpec, ...] = (
     GainSpec('i_clamp', (40.0, 10.0), 'N m',
              'bound on the integral term (pid anti-windup); above the largest gravity '
              'torque so the integral can hold any pose'),
+    GainSpec('lqr_q', (1e4, 1e4), '1/rad^2', 'lqr: weight of the position error in Q'),
+    GainSpec('lqr_qd', (100.0, 100.0), 's^2/rad^2', 'lqr: weight of the velocity error in Q'),
+    GainSpec('lqr_r', (1.0, 1.0), '1/(N m)^2', 'lqr: weight of the torque in R', True),
 )
 _DEFAULTS = {g.name: g.default for g in GAINS}
 
@@ -69,6 +73,8 @@ class Gains:
     kd : (n,) N m s/rad, >= 0 (for computed_torque: 1/s)
     ki : (n,) N m/(rad s), >= 0 (pid only)
     i_clamp : (n,) N m, >= 0 -- bound on the integral term's torque (pid only)
+    lqr_q, lqr_qd : (n,) 1/rad^2, s^2/rad^2, >= 0; lqr_r : (n,) 1/(N m)^2, > 0 -- the
+        diagonal weights of lqr's cost (None: each joint's default)
 
     Defaults: :data:`GAINS` (for two joints).
     """
@@ -77,16 +83,23 @@ class Gains:
     kd: tuple[float, ...] = _DEFAULTS['kd']
     ki: tuple[float, ...] = _DEFAULTS['ki']
     i_clamp: tuple[float, ...] = _DEFAULTS['i_clamp']
+    lqr_q: tuple[float, ...] | None = None
+    lqr_qd: tuple[float, ...] | None = None
+    lqr_r: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         n = len(self.kp) if hasattr(self.kp, '__len__') else 0
         for g in GAINS:
-            object.__setattr__(self, g.name, finite_tuple(g.name, getattr(self, g.name), n,
-                                                          minimum=0.0))
+            value = getattr(self, g.name)
+            if value is None:  # a gain given for two joints only: the last one repeated
+                value = (g.default + (g.default[-1],) * n)[:n]
+            object.__setattr__(self, g.name, finite_tuple(
+                g.name, value, n, minimum=0.0, strict=g.positive))
 
 
-#: torque(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des, dt)
-#: -> (raw torque, new integral); see :func:`law_torque` for the arguments.
+#: torque(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des, dt, *,
+#: q_des, weights, cache) -> (raw torque, new integral); see :func:`law_torque` for the
+#: arguments (a law takes the keywords it needs and ignores the rest).
 TorqueFn = Callable[..., tuple[np.ndarray, np.ndarray]]
 
 
@@ -101,22 +114,63 @@ class Law:
     gains: tuple[str, ...]
     uses_model: bool
     torque: TorqueFn
+    batch: bool = True   # works on a batch of arms (the sweeps' loop)
 
 
-def _pd(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des, dt):
+def _pd(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des, dt, **_):
     return kp * e + kd * ed, integral
 
 
-def _pd_gravity(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des, dt):
+def _pd_gravity(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des, dt, **_):
     return kp * e + kd * ed + model.gravity_vector(q), integral
 
 
 def _computed_torque(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des,
-                     dt):
+                     dt, **_):
     return model.inverse_dynamics(q, qd, qdd_des + kd * ed + kp * e), integral
 
 
-def _pid(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des, dt):
+def lqr_gain(model: RobotModel, q_goal, weights, period: float) -> np.ndarray:
+    """The discrete LQR gain K (n, 2n) [N m/rad, N m s/rad] about the goal at rest,
+    ``q_goal`` [rad] with its gravity torque: ``(Ad, Bd)`` of the control ``period`` [s]
+    (:mod:`arm_dynamics.linearize`), the discrete algebraic Riccati equation
+    (``scipy.linalg.solve_discrete_are``) with ``Q = diag(lqr_q, lqr_qd)``, ``R =
+    diag(lqr_r)``, and ``K = (R + Bd' P Bd)^-1 Bd' P Ad``: the closed loop ``Ad - Bd K``
+    has the eigenvalues the design chose. ``weights`` = (lqr_q, lqr_qd, lqr_r).
+
+    References: Franklin, Powell, Workman, *Digital Control of Dynamic Systems* (1998),
+    §9.2; Lewis, Vrabie, Syrmos, *Optimal Control* (3rd ed., 2012), §2.4."""
+    from scipy.linalg import solve_discrete_are
+    q_goal = np.asarray(q_goal, dtype=float)
+    n = len(q_goal)
+    ad, bd = model.linearize(q_goal, np.zeros(n), model.gravity_vector(q_goal),
+                             period=period)
+    q_w, qd_w, r_w = (np.asarray(w, dtype=float) for w in weights)
+    p = solve_discrete_are(ad, bd, np.diag(np.r_[q_w, qd_w]), np.diag(r_w))
+    return np.linalg.solve(np.diag(r_w) + bd.T @ p @ bd, bd.T @ p @ ad)
+
+
+#: The control period lqr designs for when the law has not been called before (s).
+LQR_PERIOD = 0.01
+
+
+def _lqr(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des, dt, *,
+         q_des, weights, cache=None, **_):
+    if np.ndim(q) != 1:
+        raise ValueError('lqr designs one gain per arm about its goal: not for a batch')
+    q_goal = np.asarray(q_des, dtype=float)
+    period = dt if dt > 0.0 else LQR_PERIOD
+    key = (tuple(q_goal), period)
+    gain = None if cache is None else cache.get(key)
+    if gain is None:
+        gain = lqr_gain(model, q_goal, weights, period)
+        if cache is not None:
+            cache.clear()  # one goal at a time: a moving reference re-designs each tick
+            cache[key] = gain
+    return model.gravity_vector(q_goal) + gain @ np.r_[e, ed], integral
+
+
+def _pid(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des, dt, **_):
     candidate = np.clip(integral + ki * e * dt, -i_clamp, i_clamp)
     raw = kp * e + kd * ed + candidate
     # Conditional integration: keep the old integral where the output saturates
@@ -139,7 +193,12 @@ LAW_TABLE: dict[str, Law] = {law.name: law for law in (
         _computed_torque),
     Law('pid', "Kp e + Ki int(e) + Kd e'", 'model-free; the integral clamped to i_clamp and '
         'frozen while the output saturates', ('kp', 'kd', 'ki', 'i_clamp'), False, _pid),
+    Law('lqr', "g(q_goal) + K (e, e')", 'discrete LQR about the goal at rest (the sampled '
+        'linearisation, Riccati), gravity feed-forward; not in batch sweeps',
+        ('lqr_q', 'lqr_qd', 'lqr_r'), True, _lqr, batch=False),
 )}
+#: The laws a batch of arms can run (the sweeps' law axis).
+BATCH_LAWS = tuple(name for name, law in LAW_TABLE.items() if law.batch)
 LAWS = tuple(LAW_TABLE)
 
 
@@ -199,6 +258,7 @@ class ControlLaw:
         self._limits = np.array(self.effort_limits)
         if np.shape(self.integral) != (n,):  # not given (or not for these joints): zero
             self.integral = np.zeros(n)
+        self._designs: dict = {}  # lqr: the gain of the current goal
 
     def reset(self) -> None:
         """Forget the integral."""
@@ -212,7 +272,8 @@ class ControlLaw:
         raw, self.integral = law_torque(
             self.law, np.asarray(g.kp), np.asarray(g.kd), np.asarray(g.ki),
             np.asarray(g.i_clamp), self._limits, self.model, self.integral, q, qd, q_des,
-            qd_des, qdd_des, dt)
+            qd_des, qdd_des, dt, weights=(g.lqr_q, g.lqr_qd, g.lqr_r),
+            cache=self._designs)
         tau = np.clip(raw, -self._limits, self._limits)
         return Command(tau=tau, raw=raw, saturated=np.abs(raw) > self._limits)
 
@@ -220,7 +281,8 @@ class ControlLaw:
 def law_torque(law: str, kp: np.ndarray, kd: np.ndarray, ki: np.ndarray,
                i_clamp: np.ndarray, limits: np.ndarray, model, integral: np.ndarray,
                q: np.ndarray, qd: np.ndarray, q_des: np.ndarray, qd_des: np.ndarray,
-               qdd_des: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+               qdd_des: np.ndarray, dt: float,
+               weights=None, cache: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The unsaturated torque of ``law`` and the PID integral after this call.
 
     The formulas of :class:`ControlLaw` (which calls this), for one state or a batch:
@@ -236,7 +298,9 @@ def law_torque(law: str, kp: np.ndarray, kd: np.ndarray, ki: np.ndarray,
     integral : N m, the PID integral term before this call (other laws: returned as is)
     q, qd : rad, rad/s -- measured state
     q_des, qd_des, qdd_des : rad, rad/s, rad/s^2 -- reference
-    dt : s, time since the previous call (PID only)
+    dt : s, time since the previous call (PID; lqr designs for it)
+    weights : (lqr_q, lqr_qd, lqr_r), each (n,) -- lqr's cost weights (other laws: unused)
+    cache : dict or None -- lqr keeps the gain of the current goal here between calls
 
     Returns
     -------
@@ -248,4 +312,4 @@ def law_torque(law: str, kp: np.ndarray, kd: np.ndarray, ki: np.ndarray,
         raise ValueError(f"law must be one of {', '.join(LAWS)}; got {law!r}")
     e, ed = q_des - q, qd_des - qd
     return spec.torque(kp, kd, ki, i_clamp, limits, model, integral, e, ed, q, qd, qdd_des,
-                       dt)
+                       dt, q_des=q_des, weights=weights, cache=cache)

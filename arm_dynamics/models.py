@@ -98,6 +98,14 @@ class RobotModel(Protocol):
     def jdot_qd(self, q, qd) -> np.ndarray:
         """J'(q, qd) qd [m/s^2], (..., 2): the tip acceleration at zero qdd."""
 
+    def inverse_dynamics_complex(self, q, qd, qdd) -> np.ndarray:
+        """Inverse dynamics of one state carrying complex q, qd (complex-step derivatives)."""
+
+    def linearize(self, q, qd, tau, period: float | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """(A, B) about (q, qd, tau): (2n, 2n), (2n, n); continuous, or sampled with the
+        torque held over ``period`` [s] (:mod:`arm_dynamics.linearize`)."""
+
 
 @dataclass(frozen=True)
 class ModelKind:

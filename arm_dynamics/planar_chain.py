@@ -136,6 +136,21 @@ class PlanarChain:
         """tau [N m] = D qdd + C qd + g + B qd; shapes (n,) or (..., n)."""
         return self._full.inverse_dynamics(q, qd, qdd)
 
+    def inverse_dynamics_complex(self, q, qd, qdd) -> np.ndarray:
+        """:meth:`inverse_dynamics` carrying complex ``q`` and ``qd`` through (the same
+        Newton-Euler pass), for complex-step derivatives; unchecked."""
+        return self._full.unchecked(np.asarray(q), np.asarray(qd), np.asarray(qdd))
+
+    def linearize(self, q, qd, tau, period: float | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """``(A, B)`` about ``(q, qd, tau)``, state ``(q, qd)``: continuous, or with
+        ``period`` [s] the zero-order-hold pair of the control period
+        (:mod:`arm_dynamics.linearize`)."""
+        from arm_dynamics.linearize import linearize, linearize_discrete
+        if period is None:
+            return linearize(self, q, qd, tau)
+        return linearize_discrete(self, q, qd, tau, period)
+
     def mass_matrix(self, q) -> np.ndarray:
         """D(q), kg m^2: (n, n) or (..., n, n); column j is ID(q, 0, e_j) without gravity."""
         return self._columns(state_array('q', q, self.n_dof))

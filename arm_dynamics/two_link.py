@@ -448,6 +448,23 @@ class TwoLinkArm:
                 + np.einsum('...ij,...j->...i', self.coriolis_matrix(q, qd), qd)
                 + self.gravity_vector(q) + self.damping_torque(qd))
 
+    def inverse_dynamics_complex(self, q, qd, qdd) -> np.ndarray:
+        """:meth:`inverse_dynamics` of one state (2,) carrying complex ``q`` and ``qd``
+        through (the same closed form), for complex-step derivatives; unchecked."""
+        q, qd, qdd = (np.asarray(v) for v in (q, qd, qdd))
+        return np.array(_make_inverse(self._k, np.cos, np.sin)(q[0], q[1], qd[0], qd[1],
+                                                              qdd[0], qdd[1]))
+
+    def linearize(self, q, qd, tau, period: float | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """``(A, B)`` about ``(q, qd, tau)``, state ``(q, qd)``: continuous, or with
+        ``period`` [s] the zero-order-hold pair of the control period
+        (:mod:`arm_dynamics.linearize`)."""
+        from arm_dynamics.linearize import linearize, linearize_discrete
+        if period is None:
+            return linearize(self, q, qd, tau)
+        return linearize_discrete(self, q, qd, tau, period)
+
     def step(self, q, qd, tau, dt: float, n_steps: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """Advance ``n_steps`` RK4 steps of ``dt`` [s] holding ``tau`` [N m]; returns (q, qd).
 

@@ -16,7 +16,9 @@ from arm_control.laws import (
     ControlLaw,
     Gains,
     gains_markdown,
+    law_torque,
     laws_markdown,
+    lqr_gain,
 )
 from arm_control.trajectory import Trajectory, TrajectoryError, TrajectoryPoint
 from arm_dynamics import TwoLinkArm, simulate
@@ -188,8 +190,55 @@ def test_every_law_of_the_registry_gives_its_formulas_torque():
             + PLANT.coriolis_matrix(q, qd) @ qd + PLANT.gravity_vector(q),
             'pid': kp * e + kd * ed + np.clip(np.array(gains.ki) * e * 0.01,
                                               -np.array(gains.i_clamp), gains.i_clamp),
+            'lqr': PLANT.gravity_vector(qr) + lqr_gain(
+                PLANT, qr, (gains.lqr_q, gains.lqr_qd, gains.lqr_r), 0.01) @ np.r_[e, ed],
         }
         for name in LAW_TABLE:
             raw = ControlLaw(name, gains, PLANT, (1e6, 1e6))(q, qd, qr, qdr, qddr, 0.01).raw
             np.testing.assert_allclose(raw, expected[name], rtol=1e-12, atol=1e-12,
                                        err_msg=name)
+
+
+
+# ---------------------------------------------------------------------- lqr
+GOAL_Q = np.array([0.3, 0.9])
+
+
+def test_lqrs_linearised_closed_loop_has_the_eigenvalues_the_design_chose():
+    """The controller's torque, differentiated about the goal (central differences of the
+    implementation), closes the sampled plant ``(Ad, Bd)``; its eigenvalues equal those of
+    ``Ad - Bd K`` that the Riccati design chose, and lie inside the unit circle."""
+    gains = Gains()
+    law = ControlLaw('lqr', gains, PLANT, (1e6, 1e6))
+    ad, bd = PLANT.linearize(GOAL_Q, np.zeros(2), PLANT.gravity_vector(GOAL_Q), period=0.01)
+    designed = np.linalg.eigvals(ad - bd @ lqr_gain(
+        PLANT, GOAL_Q, (gains.lqr_q, gains.lqr_qd, gains.lqr_r), 0.01))
+    h = 1e-6
+    x0 = np.r_[GOAL_Q, 0.0, 0.0]
+
+    def tau(x):
+        return law(x[:2], x[2:], GOAL_Q, np.zeros(2), np.zeros(2), 0.01).raw
+    k_impl = -np.stack([(tau(x0 + h * e) - tau(x0 - h * e)) / (2 * h) for e in np.eye(4)], -1)
+    realised = np.linalg.eigvals(ad - bd @ k_impl)
+    np.testing.assert_allclose(np.sort_complex(realised), np.sort_complex(designed),
+                               atol=1e-7)
+    assert np.abs(designed).max() < 1.0, 'the design is stable'
+
+
+def test_lqr_brings_the_arm_to_the_goal_and_holds_it_with_no_error():
+    law = ControlLaw('lqr', Gains(), PLANT, LIMITS)
+    res, _ = run(law, set_point(GOAL_Q), 5.0, dt=0.01)
+    err = np.abs(res.q[-1] - GOAL_Q).max()
+    assert err < 1e-9, f'steady-state error {err:.2e} rad (gravity feed-forward is exact)'
+    assert np.abs(res.qd[-1]).max() < 1e-8
+
+
+def test_lqr_refuses_a_batch_and_is_left_out_of_the_batch_laws():
+    from arm_control.laws import BATCH_LAWS
+    assert 'lqr' in LAWS and 'lqr' not in BATCH_LAWS
+    g = Gains()
+    with pytest.raises(ValueError, match='not for a batch'):
+        law_torque('lqr', *(np.asarray(v) for v in (g.kp, g.kd, g.ki, g.i_clamp)),
+                   np.array(LIMITS), PLANT, np.zeros((3, 2)), np.zeros((3, 2)),
+                   np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((3, 2)),
+                   0.01, weights=(g.lqr_q, g.lqr_qd, g.lqr_r))

@@ -230,7 +230,7 @@ CHAIN_GAINS = {'gains.kp': [200.0, 100.0, 20.0], 'gains.kd': [30.0, 15.0, 2.0],
                'gains.ki': [200.0, 100.0, 20.0], 'gains.i_clamp': [55.0, 20.0, 5.0]}
 
 
-@pytest.mark.parametrize('law', ['pd', 'pd_gravity', 'computed_torque', 'pid'])
+@pytest.mark.parametrize('law', ['pd', 'pd_gravity', 'computed_torque', 'pid', 'lqr'])
 def test_the_controllers_laws_regulate_a_3_link_arm_to_a_planned_goal(ros, launch, law,
                                                                        tmp_path):
     """Simulator, controller, planner, visualizer and recorder on a 3-link arm: the goal is
