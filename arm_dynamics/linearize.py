@@ -83,3 +83,13 @@ def linearize_discrete(model: Any, q, qd, tau, period: float
     ``period`` [s] with the torque held (what the simulator does between commands)."""
     a, b = linearize(model, q, qd, tau)
     return discretize(a, b, period)
+
+
+def linearized(model: Any, q, qd, tau, period: float | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """What every model's ``linearize`` returns: :func:`linearize`, or with ``period`` [s]
+    :func:`linearize_discrete`."""
+    if period is None:
+        return linearize(model, q, qd, tau)
+    return linearize_discrete(model, q, qd, tau, period)
+

@@ -146,10 +146,8 @@ class PlanarChain:
         """``(A, B)`` about ``(q, qd, tau)``, state ``(q, qd)``: continuous, or with
         ``period`` [s] the zero-order-hold pair of the control period
         (:mod:`arm_dynamics.linearize`)."""
-        from arm_dynamics.linearize import linearize, linearize_discrete
-        if period is None:
-            return linearize(self, q, qd, tau)
-        return linearize_discrete(self, q, qd, tau, period)
+        from arm_dynamics.linearize import linearized
+        return linearized(self, q, qd, tau, period)
 
     def mass_matrix(self, q) -> np.ndarray:
         """D(q), kg m^2: (n, n) or (..., n, n); column j is ID(q, 0, e_j) without gravity."""

@@ -460,10 +460,8 @@ class TwoLinkArm:
         """``(A, B)`` about ``(q, qd, tau)``, state ``(q, qd)``: continuous, or with
         ``period`` [s] the zero-order-hold pair of the control period
         (:mod:`arm_dynamics.linearize`)."""
-        from arm_dynamics.linearize import linearize, linearize_discrete
-        if period is None:
-            return linearize(self, q, qd, tau)
-        return linearize_discrete(self, q, qd, tau, period)
+        from arm_dynamics.linearize import linearized
+        return linearized(self, q, qd, tau, period)
 
     def step(self, q, qd, tau, dt: float, n_steps: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """Advance ``n_steps`` RK4 steps of ``dt`` [s] holding ``tau`` [N m]; returns (q, qd).
