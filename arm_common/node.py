@@ -6,9 +6,10 @@ Only node modules import this; the maths stays in the ROS-free packages.
 from __future__ import annotations
 
 import math
+import os
 import signal
 import sys
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 import rclpy
@@ -23,6 +24,7 @@ from rcl_interfaces.msg import (
 )
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.srv import SetParameters
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.experimental import EventsExecutor
@@ -31,7 +33,14 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from arm_common.params import ParamSpec, command_line_parameters, per_joint_defaults
+from arm_common.params import (
+    ParamSpec,
+    command_line_parameters,
+    rcl_params_file,
+    rcl_rule_value,
+    relation_reasons,
+    resolve,
+)
 from arm_common.process import watch_parent
 from arm_common.throttle import Throttle
 
@@ -80,15 +89,15 @@ def declare_parameters(node: Node, specs: Iterable[ParamSpec],
     listing every refused value.
 
     Start-up values come from params files and ``--ros-args -p``, with ``-p`` winning for
-    every parameter (rclpy alone lets a file entry naming the node beat a ``-p``), integers
-    given for doubles taken as doubles, and an empty list (which a params file loads as
-    unset) as the empty default. Numeric parameters carry their range
-    (``FloatingPointRange`` / ``IntegerRange``) for ``ros2 param describe``.
-
-    ``joints`` (the start-up values by name -> the robot's joint count, raising ValueError
-    with the reason) sizes the per-joint parameters (:func:`per_joint_defaults`): those not
-    given are declared with their default for that many joints, so parameter tools show
-    the values the node uses.
+    every parameter (rclpy alone lets a file entry naming the node beat a ``-p``). They
+    are validated by :func:`arm_common.params.resolve`, the code ``arm-sim urdf`` runs too:
+    integers given for doubles taken as doubles, an empty list (which a params file loads
+    as unset) as the empty default, each value checked, the per-joint parameters sized
+    by ``joints`` (the start-up values by name -> the robot's joint count, raising
+    ValueError with the reason; those not given are declared with their default for that
+    many joints, so parameter tools show the values the node uses), then each spec's
+    relation to the others. Every parameter is declared with its type and, numeric, its
+    range (:func:`descriptor`), as ``ros2 param describe`` shows them.
     """
     specs = tuple(specs)
     # rclpy keeps the start-up values (params files, then -p) in this dict and reads it in
@@ -96,12 +105,6 @@ def declare_parameters(node: Node, specs: Iterable[ParamSpec],
     overrides: dict[str, Parameter] = node._parameter_overrides  # private: see above
     from_command_line = command_line_parameters(_user_args, node.get_name(),
                                                 node.get_fully_qualified_name())
-    for spec in specs:
-        if spec.name in from_command_line:
-            overrides[spec.name] = Parameter(spec.name, value=from_command_line[spec.name])
-        if spec.name in overrides:
-            value = spec.as_declared(overrides[spec.name].value)
-            overrides[spec.name] = Parameter(spec.name, value=value)
     own = {spec.name for spec in specs}
     for name, value in from_command_line.items():  # rclpy's own, e.g. use_sim_time
         if name not in own and node.has_parameter(name) and (
@@ -109,30 +112,55 @@ def declare_parameters(node: Node, specs: Iterable[ParamSpec],
             node.set_parameters([Parameter(name, value=value)])
     given = {spec.name: overrides[spec.name].value for spec in specs
              if spec.name in overrides}
-    # Refused before rclpy's own range check can raise on them.
-    reasons = [r for r in (spec.check(given[spec.name]) for spec in specs
-                           if spec.name in given) if r]
-    defaults = {spec.name: spec.default for spec in specs}
-    if not reasons and joints is not None:
-        try:
-            n = joints({**defaults, **given})
-        except ValueError as exc:
-            raise ConfigError(str(exc)) from None
-        defaults, reasons = per_joint_defaults(specs, given, n)
-    if reasons:
-        raise ConfigError('; '.join(reasons))
-    values = {}
+    given.update({k: v for k, v in from_command_line.items() if k in own})
+    try:
+        values = resolve(specs, given, joints)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    for spec in specs:  # valid now: rclpy may hold them (a mixed list it could not)
+        if spec.name in given:
+            overrides[spec.name] = Parameter(spec.name, value=values[spec.name])
     for spec in specs:
-        value = node.declare_parameter(spec.name, defaults[spec.name],
-                                       descriptor(spec)).value
-        values[spec.name] = spec.as_declared(value)
+        _declare(node, spec, values[spec.name])
     return values
 
 
+#: The ROS type of each ParamSpec kind: what an empty list is declared as.
+_TYPES = {'double': Parameter.Type.DOUBLE, 'doubles': Parameter.Type.DOUBLE_ARRAY,
+          'string': Parameter.Type.STRING, 'strings': Parameter.Type.STRING_ARRAY,
+          'int': Parameter.Type.INTEGER, 'bool': Parameter.Type.BOOL}
+
+
+def _declare(node: Node, spec: ParamSpec, value: Any) -> None:
+    """Declare one parameter with its (valid) start-up ``value`` and :func:`descriptor`.
+
+    Dynamically typed, as the nodes' own checks refuse wrong types in their words; the
+    type follows the value, so every value declares its real type, except an empty list,
+    which rclpy would take for a byte array (``ros2 param describe`` said "byte array" for
+    ``control_model.*``). That one is declared writable, its empty value of the spec's
+    type put in place through :meth:`Node.set_descriptor`, and only then read-only as
+    its spec says."""
+    desc = descriptor(spec)
+    if not (isinstance(value, list) and not value):
+        node.declare_parameter(spec.name, value, desc)
+        return
+    kind = _TYPES[spec.kind]
+    writable = descriptor(spec)
+    writable.read_only = False
+    node.declare_parameter(spec.name, value, writable)
+    empty = ParameterValue(type=kind.value, **{
+        'double_array_value' if kind == Parameter.Type.DOUBLE_ARRAY
+        else 'string_array_value': []})
+    static = descriptor(spec)
+    static.dynamic_typing, static.type = False, kind.value
+    node.set_descriptor(spec.name, static, alternative_value=empty)
+
+
 def descriptor(spec: ParamSpec) -> ParameterDescriptor:
-    """The ROS descriptor of a parameter: its doc, read-only flag and numeric range."""
+    """The ROS descriptor of a parameter: its doc, read-only flag, type and numeric range."""
     desc = ParameterDescriptor(name=spec.name, description=spec.doc(),
-                               read_only=spec.read_only, dynamic_typing=True)
+                               read_only=spec.read_only, dynamic_typing=True,
+                               type=_TYPES[spec.kind].value)
     if spec.minimum is None and spec.maximum is None:
         return desc
     lo = -math.inf if spec.minimum is None else spec.minimum
@@ -148,9 +176,14 @@ def descriptor(spec: ParamSpec) -> ParameterDescriptor:
 
 def on_parameter_changes(node: Node, specs: Iterable[ParamSpec],
                          validate: Callable[[dict[str, Any]], str | None],
-                         apply: Callable[[dict[str, Any]], None]) -> None:
+                         apply: Callable[[dict[str, Any]], None],
+                         values: dict[str, Any] | None = None) -> None:
     """Validate run-time parameter changes against ``specs`` (then ``validate``, which sees
-    the changed values and may refuse with a reason), and ``apply`` accepted ones."""
+    the changed values and may refuse with a reason, then, given the node's current
+    ``values`` by name, each spec's relation to the others, as at start:
+    :func:`arm_common.params.relation_reasons`), and ``apply`` accepted ones (``apply``
+    keeps ``values`` up to date)."""
+    specs = tuple(specs)
     table = {s.name: s for s in specs}
 
     def check(params: list[Parameter]) -> SetParametersResult:
@@ -164,6 +197,8 @@ def on_parameter_changes(node: Node, specs: Iterable[ParamSpec],
                 return SetParametersResult(successful=False, reason=reason)
             changed[p.name] = p.value
         reason = validate(changed) if changed else None
+        if reason is None and changed and values is not None:
+            reason = '; '.join(relation_reasons(specs, {**values, **changed})) or None
         return SetParametersResult(successful=reason is None, reason=reason or '')
 
     def after(params: list[Parameter]) -> None:
@@ -379,6 +414,71 @@ def spin_until_stopped(executor: Executor, _node: Node,
         executor.spin_once(timeout_sec=0.1)
 
 
+_rewritten: list[int] = []  # memfds of params files rewritten for rcl (live as long as we)
+
+
+def rcl_arguments(argv: Sequence[str], specs: Iterable[ParamSpec] = ()) -> list[str]:
+    """``argv`` as rcl can parse it, so that a value the nodes accept never crashes rcl's
+    start-up (it refuses a list mixing integers and doubles, ``-p link_lengths:=[1,0.8]``,
+    with a traceback, while ``arm-sim urdf`` takes it):
+
+    * a ``-p`` rule whose list mixes integers and doubles is given to rcl as doubles; one
+      mixing other types (``[a, 1]``) is left out for rcl: the node reads every ``-p``
+      rule itself (:func:`declare_parameters`) and refuses it with the reason the others
+      give;
+    * a ``--params-file`` with such lists is given to rcl as a rewritten copy (in memory:
+      nothing on disk); a list mixing other types raises :class:`ConfigError` naming the
+      parameter and, for one of ``specs``, the reason :meth:`ParamSpec.check` gives.
+    """
+    table = {spec.name: spec for spec in specs}
+    out: list[str] = []
+    in_ros_args = False
+    it = iter(argv)
+    for arg in it:
+        if arg == '--ros-args':
+            in_ros_args = True
+        elif arg == '--':
+            in_ros_args = False
+        elif in_ros_args and arg in ('-p', '--param'):
+            rule = next(it, None)
+            if rule is None or ':=' not in rule:
+                out += [arg] + ([rule] if rule is not None else [])
+                continue
+            target, text = rule.split(':=', 1)
+            value = rcl_rule_value(text)
+            if value is not None:
+                out += [arg, f'{target}:={value}']
+            continue
+        elif in_ros_args and arg == '--params-file':
+            path = next(it, None)
+            out += [arg] + ([_rcl_params_file(path, table)] if path is not None else [])
+            continue
+        out.append(arg)
+    return out
+
+
+def _rcl_params_file(path: str, table: dict[str, ParamSpec]) -> str:
+    try:
+        with open(path, encoding='utf-8') as f:
+            text = f.read()
+    except (OSError, UnicodeDecodeError):
+        return path  # rcl's to refuse
+    fixed, mixed = rcl_params_file(text)
+    if mixed:
+        reasons = []
+        for name, value in mixed:
+            spec = table.get(name)
+            reason = spec.check(spec.as_declared(value)) if spec is not None else None
+            reasons.append(reason or f'{name} must hold values of one type, got {value!r}')
+        raise ConfigError(f'params file {path!r}: ' + '; '.join(reasons))
+    if fixed is None:
+        return path
+    fd = os.memfd_create('params.yaml')
+    os.write(fd, fixed.encode())
+    _rewritten.append(fd)
+    return f'/proc/self/fd/{fd}'
+
+
 def run_node(factory: Callable[[], Node | list[Node]], *, prog: str, summary: str,
              specs: Iterable[ParamSpec], args: list[str] | None = None,
              spin: Spin | None = None,
@@ -406,7 +506,13 @@ def run_node(factory: Callable[[], Node | list[Node]], *, prog: str, summary: st
         return 0
     stop = []
     _user_args[:] = argv
-    rclpy.init(args=[prog, *argv], signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rcl_args = rcl_arguments(argv, specs)
+        rclpy.init(args=[prog, *rcl_args], signal_handler_options=SignalHandlerOptions.NO)
+    except (ConfigError, RCLError) as exc:
+        reason = ' '.join(str(exc).split()).split(', at /')[0]  # one line, no C sources
+        print(f'{prog}: refused parameters: {reason}', file=sys.stderr)
+        return 2
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.append(True))
     watch_parent()

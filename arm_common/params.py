@@ -7,7 +7,7 @@ run time; :meth:`ParamSpec.check` returns the reason a value is refused, or None
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -22,7 +22,10 @@ class ParamSpec:
     ``'int'``, ``'bool'``. ``length`` fixes an array's length; ``minimum``/``maximum``
     bound every number (``strict_min`` makes the minimum exclusive); ``choices`` lists the
     allowed strings; ``hints`` gives the reason for known refused strings (e.g. a removed
-    mode); ``allow_inf`` accepts -inf / inf (written ``.inf`` in YAML) as "no limit".
+    mode); ``allow_inf`` accepts -inf / inf (written ``.inf`` in YAML) as "no limit";
+    ``unique`` refuses a list that repeats a value (joint names); ``allow_empty`` accepts
+    an empty string (a free string is otherwise refused empty); ``relation`` checks the
+    value against the other parameters (:func:`resolve`).
     """
 
     name: str
@@ -45,6 +48,13 @@ class ParamSpec:
     #: What :meth:`default_for` puts on joints beyond the default's length: a value, or a
     #: function of the 0-based joint index; None repeats the default's last value.
     fill: Any = None
+    unique: bool = False
+    allow_empty: bool = False
+    #: The reason this parameter's value does not fit the others (every parameter's value
+    #: by name, as declared and sized to the joints), or None: what no single value shows
+    #: (a lower limit above the upper, an initial state beyond the runaway envelope). Run
+    #: by :func:`resolve` at start and by the nodes on every run-time change.
+    relation: Callable[[Mapping[str, Any]], str | None] | None = None
 
     def doc(self) -> str:
         """The description with unit, range and mutability, as shown by parameter tools."""
@@ -79,6 +89,8 @@ class ParamSpec:
             reason = self._check_item(kind, item)
             if reason:
                 return reason
+        if self.unique and len(set(items)) != len(items):
+            return f'{self.name} must not repeat a value, got {tuple(items)!r}'
         return None
 
     def _check_item(self, kind: str, item: Any) -> str | None:
@@ -91,7 +103,7 @@ class ParamSpec:
                 return f'{name}: {hint}'
             if self.choices and item not in self.choices:
                 return f"{name} must be one of {', '.join(self.choices)}; got {item!r}"
-            if not self.choices and not item:
+            if not self.choices and not item and not self.allow_empty:
                 return f'{name} must not be empty'
             return None
         if kind == 'bool':
@@ -164,6 +176,57 @@ def per_joint_defaults(specs: Sequence[ParamSpec], given: dict[str, Any], n: int
     return defaults, reasons
 
 
+def resolve(specs: Sequence[ParamSpec], given: Mapping[str, Any],
+            joints: Callable[[dict[str, Any]], int] | None = None) -> dict[str, Any]:
+    """Every parameter's value for the ``given`` ones (name -> value, e.g. from a params
+    file or ``-p``; the others take their defaults), or ValueError naming every refused
+    value: the one place a node's start-up and ``arm-sim urdf`` validate parameters.
+
+    In order: each given value as declared (:meth:`ParamSpec.as_declared`: integers for
+    doubles are doubles) and checked (:meth:`ParamSpec.check`); then ``joints`` (the
+    values -> the robot's joint count, raising ValueError with the reason) sizes the
+    per-joint parameters (:func:`per_joint_defaults`); then each :attr:`ParamSpec.relation`
+    sees every value. A stage runs only if the one before refused nothing.
+    """
+    specs = tuple(specs)
+    table = {spec.name: spec for spec in specs}
+    values = {name: table[name].as_declared(v) if name in table else v
+              for name, v in given.items()}
+    reasons = [r for r in (table[name].check(v) for name, v in values.items()
+                           if name in table) if r]
+    defaults = {spec.name: spec.default for spec in specs}
+    if not reasons and joints is not None:
+        try:
+            n = joints({**defaults, **values})
+        except ValueError as exc:
+            raise ValueError(str(exc)) from None
+        defaults, reasons = per_joint_defaults(specs, values, n)
+    if reasons:
+        raise ValueError('; '.join(reasons))
+    resolved = {**defaults, **values}
+    reasons = relation_reasons(specs, resolved)
+    if reasons:
+        raise ValueError('; '.join(reasons))
+    return resolved
+
+
+def relation_reasons(specs: Sequence[ParamSpec], values: Mapping[str, Any]) -> list[str]:
+    """Why ``values`` (every parameter's, by name) do not fit together: the reason of each
+    spec's :attr:`~ParamSpec.relation` that refuses. A relation that fails (it should
+    not: :meth:`ParamSpec.check` and the joint count run first) refuses, naming why."""
+    reasons = []
+    for spec in specs:
+        if spec.relation is None:
+            continue
+        try:
+            reason = spec.relation(values)
+        except Exception as exc:  # a value no check foresaw: refused, never a crash
+            reason = f'{spec.name} cannot be checked against the other parameters: {exc!r}'
+        if reason:
+            reasons.append(reason)
+    return reasons
+
+
 def _is_int(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
@@ -223,3 +286,83 @@ def _scalar(node: yaml.Node) -> Any:
         except ValueError:
             return value
     return value
+
+
+def _kind(value: Any) -> str:
+    """rcl's type of one parsed YAML item: bool, integer, double or string."""
+    if isinstance(value, bool):
+        return 'bool'
+    if isinstance(value, int):
+        return 'integer'
+    if isinstance(value, float):
+        return 'double'
+    return 'string' if isinstance(value, str) else type(value).__name__
+
+
+def _fix_sequence(node: yaml.SequenceNode) -> bool | None:
+    """Make a flow or block sequence of scalars rcl can read: integers among doubles
+    rewritten as doubles (True: changed), nothing to do (False), or None: it mixes other
+    types (``[a, 1]``, ``[true, 1]``), which no rcl parameter can hold."""
+    if not node.value or not all(isinstance(i, yaml.ScalarNode) for i in node.value):
+        return False
+    values = [_scalar(i) for i in node.value]
+    kinds = {_kind(v) for v in values}
+    if len(kinds) < 2:
+        return False
+    if kinds != {'integer', 'double'}:
+        return None
+    for item, value in zip(node.value, values):
+        if isinstance(value, int):
+            item.value, item.tag, item.style = repr(float(value)), 'tag:yaml.org,2002:float', None
+    return True
+
+
+def rcl_rule_value(text: str) -> str | None:
+    """A ``-p name:=value`` rule's value as rcl can parse it: ``text`` itself, a list mixing
+    integers and doubles (``[1, 0.8]``, which rcl refuses: "Sequence should be of same
+    type") written as doubles (``[1.0, 0.8]``), or None for a list mixing other types
+    (``[a, 1]``) or text that is no YAML (``[1, 2``): no rcl parameter holds it, so the
+    node's own check must refuse it (:func:`command_line_parameters` reads the rule for
+    the nodes, as a string where it is no YAML)."""
+    try:
+        node = yaml.compose(text)
+    except yaml.YAMLError:
+        return None
+    if not isinstance(node, yaml.SequenceNode):
+        return text
+    fixed = _fix_sequence(node)
+    if fixed is None:
+        return None
+    if not fixed:
+        return text
+    return '[' + ', '.join(i.value if i.style is None else repr(i.value)
+                           for i in node.value) + ']'
+
+
+def rcl_params_file(text: str) -> tuple[str | None, list[tuple[str, Any]]]:
+    """A params file's ``text`` as rcl can parse it: (the text with every list mixing
+    integers and doubles written as doubles, or None when no list needed it; the (name,
+    value) of every list mixing other types, which rcl cannot parse at all). Everything
+    else is left exactly as written (the YAML is re-emitted from its node graph, scalars
+    in their own styles). Text that is not YAML is rcl's to refuse: (None, [])."""
+    try:
+        root = yaml.compose(text)
+    except yaml.YAMLError:
+        return None, []
+    changed = False
+    mixed: list[tuple[str, Any]] = []
+
+    def walk(node: yaml.Node, name: str) -> None:
+        nonlocal changed
+        if isinstance(node, yaml.MappingNode):
+            for key, value in node.value:
+                walk(value, str(key.value) if isinstance(key, yaml.ScalarNode) else name)
+        elif isinstance(node, yaml.SequenceNode):
+            fixed = _fix_sequence(node)
+            if fixed is None:
+                mixed.append((name, [_scalar(i) for i in node.value]))
+            changed = changed or bool(fixed)
+
+    if root is not None:
+        walk(root, '')
+    return (yaml.serialize(root) if changed else None), mixed

@@ -12,7 +12,9 @@ An unbounded joint has ``-inf`` / ``inf`` limits.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -59,7 +61,7 @@ class JointLimits:
         object.__setattr__(self, 'velocity', v)
 
     @classmethod
-    def from_params(cls, params: dict) -> JointLimits:
+    def from_params(cls, params: Mapping[str, Any]) -> JointLimits:
         """From the robot parameters ``position_limits_lower``/``_upper`` and
         ``velocity_limits``."""
         return cls(tuple(params['position_limits_lower']),

@@ -9,16 +9,19 @@ recorder, analysis and synthetic bags all read them from here.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import fields
+from typing import Any
 
-from arm_common.params import ParamSpec, per_joint_defaults
+from arm_common.params import ParamSpec, resolve
 from arm_dynamics.limits import (
     DEFAULT_EFFORT,
     DEFAULT_POSITION_LOWER,
     DEFAULT_POSITION_UPPER,
     DEFAULT_VELOCITY,
+    JointLimits,
 )
-from arm_dynamics.models import MODELS, joint_count
+from arm_dynamics.models import MODELS, joint_count, robot_model
 from arm_dynamics.two_link import TwoLinkArm
 
 #: Joint names, shoulder then elbow.
@@ -40,6 +43,44 @@ def _model(name: str, description: str, unit: str, **kw) -> ParamSpec:
     return ParamSpec(name, 'double', default, description, unit, read_only=True, **kw)
 
 
+def _buildable(robot: Mapping[str, Any]) -> str | None:
+    """Why the model cannot be built from the robot parameters (what its constructor
+    refuses: e.g. a centre of gravity beyond its link), or None."""
+    try:
+        robot_model(robot)
+    except ValueError as exc:
+        return str(exc)
+    return None
+
+
+def _limits_order(robot: Mapping[str, Any]) -> str | None:
+    """Why the joint limits do not hold together (a lower limit not below the upper)."""
+    try:
+        JointLimits.from_params(robot)
+    except ValueError as exc:
+        return str(exc)
+    return None
+
+
+def urdf_names(n: int) -> set[str]:
+    """The names in the URDF of an ``n``-joint robot besides its joints' (the frames
+    base_link, link1..link<n> and tool0, and tool0's fixed joint), as
+    :mod:`arm_dynamics.urdf` makes them (it imports this module, so they are written out
+    here; test_parameter_truth checks they agree): no joint may take one."""
+    return {'base_link', 'tool0', 'tool0_joint', *(f'link{i + 1}' for i in range(n))}
+
+
+def _frame_names(robot: Mapping[str, Any]) -> str | None:
+    """Why the joint names would clash with the other names of the robot's URDF
+    (:func:`urdf_names`): robot_state_publisher could not take it."""
+    names = tuple(robot['joint_names'])
+    taken = urdf_names(len(names))
+    if taken & set(names):
+        return (f'joint_names must not name a frame of the robot (any of {sorted(taken)}); '
+                f'got {names!r}')
+    return None
+
+
 #: Robot description shared by every node; read-only. The per-joint ones have one value
 #: per joint of the model (:func:`~arm_dynamics.models.joint_count`); not given, the
 #: default for the first two joints, the last value repeated beyond (joint names
@@ -47,10 +88,11 @@ def _model(name: str, description: str, unit: str, **kw) -> ParamSpec:
 ROBOT_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('model', 'string', 'two_link',
               'Robot model: ' + '; '.join(f'{k.name}: {k.summary}' for k in MODELS.values()),
-              choices=tuple(MODELS), read_only=True),
+              choices=tuple(MODELS), read_only=True, relation=_buildable),
     ParamSpec('joint_names', 'strings', list(JOINT_NAMES),
-              'Joint names, base to tip', per_joint=True, fill=lambda i: f'joint{i + 1}',
-              read_only=True),
+              'Joint names, base to tip, all different', per_joint=True,
+              fill=lambda i: f'joint{i + 1}', read_only=True, unique=True,
+              relation=_frame_names),
     _model('link_lengths', 'Link lengths, joint axis to next axis / tip', 'm',
            minimum=0.0, strict_min=True, maximum=100.0),
     _model('com_distances', 'Joint axis to link centre of gravity', 'm',
@@ -69,7 +111,7 @@ ROBOT_PARAMS: tuple[ParamSpec, ...] = (
           'past folded', 'rad', allow_inf=True),
     _pair('position_limits_upper', DEFAULT_POSITION_UPPER,
           'Joint position upper limits (.inf: none); must exceed the lower', 'rad',
-          allow_inf=True),
+          allow_inf=True, relation=_limits_order),
     _pair('velocity_limits', DEFAULT_VELOCITY,
           'Joint speed limits (.inf: none); default about 3x the demo\'s fastest motion',
           'rad/s', minimum=0.0, strict_min=True, allow_inf=True),
@@ -82,14 +124,11 @@ ROBOT_DEFAULTS = {s.name: s.default for s in ROBOT_PARAMS}
 def resolve_robot(given: dict) -> dict:
     """The robot parameters for ``given`` values (name -> value; others take their
     defaults, per-joint ones sized to the model's joints): the pure twin of what every
-    node's start-up does. Raises ValueError naming each refused value."""
-    specs = {s.name: s for s in ROBOT_PARAMS}
-    unknown = sorted(set(given) - set(specs))
-    reasons = [f'unknown robot parameter {name!r}' for name in unknown]
-    reasons += [r for r in (specs[k].check(v) for k, v in given.items() if k in specs) if r]
-    if not reasons:
-        n = joint_count({**ROBOT_DEFAULTS, **given})
-        defaults, reasons = per_joint_defaults(ROBOT_PARAMS, given, n)
-    if reasons:
-        raise ValueError('; '.join(reasons))
-    return {**defaults, **{k: specs[k].as_declared(v) for k, v in given.items()}}
+    node's start-up does, through the same code (:func:`arm_common.params.resolve`, the
+    checks of :data:`ROBOT_PARAMS` and their relations). Raises ValueError naming each
+    refused value."""
+    known = {s.name for s in ROBOT_PARAMS}
+    unknown = sorted(set(given) - known)
+    if unknown:
+        raise ValueError('; '.join(f'unknown robot parameter {name!r}' for name in unknown))
+    return resolve(ROBOT_PARAMS, given, joint_count)

@@ -5,15 +5,16 @@ time never drifts), holds the last valid effort command, saturates it at the eff
 limits, integrates one control period at a time with fixed RK4 physics steps, and refuses
 to let the state become non-finite or absurd: a state outside the runaway envelope (the
 joint limits plus a margin) or faster than ``velocity_limit`` is a fault that stops
-integration and keeps the last good state until :meth:`reset`. Optionally the joint
-limits act as hard end stops.
+integration and keeps the last good position, at rest (zero velocity), until
+:meth:`reset`. Optionally the joint limits act as hard end stops.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -141,19 +142,25 @@ class SimulatorCore:
                 q, qd = self.model.step(self.q, self.qd, self.applied, self.dt, self.substeps)
         speed = float(np.max(np.abs(qd))) if np.isfinite(qd).all() else math.inf
         if not (np.isfinite(q).all() and speed <= self.velocity_limit):
-            self.diverged = (f'integration diverged at t={self.time:.3f} s '
-                             f'(|qd| = {speed:.3g} rad/s > {self.velocity_limit:g} or '
-                             'non-finite); holding the last good state until reset')
-            self.applied = np.zeros(self.n)
+            self._fault(f'integration diverged at t={self.time:.3f} s '
+                        f'(|qd| = {speed:.3g} rad/s > {self.velocity_limit:g} or '
+                        'non-finite); holding the last good position at rest until ~/reset')
             return
         runaway = self.envelope.violation(q, qd) if self.envelope is not None else None
         if runaway:
-            self.diverged = (f'runaway at t={self.time:.3f} s: {runaway} (the runaway '
-                             'envelope: joint limits plus margin); holding the last good '
-                             'state until reset')
-            self.applied = np.zeros(self.n)
+            self._fault(f'runaway at t={self.time:.3f} s: {runaway} (the runaway envelope: '
+                        'joint limits plus margin); holding the last good position at rest '
+                        'until ~/reset')
             return
         self.q, self.qd = q, qd
+
+    def _fault(self, reason: str) -> None:
+        """Stop integrating: the last good position is held, at rest (zero velocity: a
+        frozen arm does not move, and nobody reading the state should plan from a speed
+        it no longer has), with no torque, until :meth:`reset`."""
+        self.diverged = reason
+        self.qd = np.zeros(self.n)
+        self.applied = np.zeros(self.n)
 
     @property
     def outside_limits(self) -> str | None:
@@ -171,6 +178,58 @@ class SimulatorCore:
         if view is not None:
             return JointView(*view(self.joint_names, q, qd, tau))
         return JointView(self.joint_names[: self.n], q, qd, tau)
+
+
+def _envelope(values: Mapping[str, Any]) -> JointLimits | None:
+    """The runaway envelope the simulator parameters give (None: the geared link, whose
+    motor shaft has no joint limits, or limits the robot's own check refuses)."""
+    if values.get('model') == 'single_link_geared':
+        return None
+    try:
+        limits = JointLimits.from_params(values)
+    except ValueError:
+        return None  # refused by position_limits_upper's own relation
+    return limits.envelope(values['fault_position_margin'], values['fault_velocity_factor'])
+
+
+def initial_position_reason(values: Mapping[str, Any]) -> str | None:
+    """Why ``initial_positions`` (with the other simulator and robot parameters by name)
+    would be a runaway fault at the first step: a joint beyond a position limit plus
+    ``fault_position_margin``. None if not (the geared link has no limits)."""
+    envelope = _envelope(values)
+    if envelope is None:
+        return None
+    outside = envelope.position_violation(values['initial_positions'], 'initial position')
+    if outside is None:
+        return None
+    return (f'initial_positions: {outside}, beyond the runaway envelope (joint limits plus '
+            f"fault_position_margin {values['fault_position_margin']:g} rad): the first "
+            'step would be a runaway fault')
+
+
+def initial_velocity_reason(values: Mapping[str, Any]) -> str | None:
+    """Why ``initial_velocities`` would be a fault at the first step (a ``~/reset`` to them
+    an immediate one): a joint faster than ``fault_velocity_factor`` times its speed limit
+    (the runaway envelope), or than ``velocity_limit`` (divergence; the geared link: its
+    motor, the link's speed times the gear ratio). None if not."""
+    qd0 = np.asarray(values['initial_velocities'], dtype=float)
+    what = 'initial speed'
+    if values.get('model') == 'single_link_geared':
+        ratio = float(values['geared.gear_ratio'])
+        qd0, what = qd0[:1] * ratio, f'motor initial speed (link x gear_ratio {ratio:g})'
+    envelope = _envelope(values)
+    outside = envelope.velocity_violation(qd0, what) if envelope is not None else None
+    if outside is not None:
+        return (f'initial_velocities: {outside}, beyond the runaway envelope (velocity_limits'
+                f" times fault_velocity_factor {values['fault_velocity_factor']:g}): the "
+                'first step would be a runaway fault')
+    fastest = float(np.abs(qd0).max()) if qd0.size else 0.0
+    if fastest > values['velocity_limit']:
+        j = int(np.argmax(np.abs(qd0)))
+        return (f'initial_velocities: joint {j + 1} {what} {fastest:.6g} rad/s > '
+                f"velocity_limit {values['velocity_limit']:g} rad/s: the first step would "
+                'count as divergence')
+    return None
 
 
 def make_model(robot: dict, geared: dict) -> Model:

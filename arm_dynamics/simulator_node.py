@@ -32,7 +32,14 @@ from arm_common.params import ParamSpec
 from arm_dynamics.limits import JointLimits
 from arm_dynamics.models import joint_count
 from arm_dynamics.robot import ROBOT_PARAMS
-from arm_dynamics.simulation import CommandError, SimulatorCore, make_model, validate_command
+from arm_dynamics.simulation import (
+    CommandError,
+    SimulatorCore,
+    initial_position_reason,
+    initial_velocity_reason,
+    make_model,
+    validate_command,
+)
 from arm_dynamics.timing import (
     APPLY,
     MAX_CATCH_UP,
@@ -78,11 +85,15 @@ SIM_PARAMS: tuple[ParamSpec, ...] = (
               'advances', 'Hz', minimum=0.1, maximum=10000.0, read_only=True),
     ParamSpec('initial_positions', 'doubles', [-0.4, 1.2],
               'Initial and reset joint positions (single_link_geared: first value = link '
-              'angle from hanging down); applied at start and on reset', 'rad',
-              minimum=-100.0, maximum=100.0, per_joint=True, fill=0.0),
+              'angle from hanging down); applied at start and on reset; within the joint '
+              'limits plus fault_position_margin (refused beyond: a runaway at once)', 'rad',
+              minimum=-100.0, maximum=100.0, per_joint=True, fill=0.0,
+              relation=initial_position_reason),
     ParamSpec('initial_velocities', 'doubles', [0.0, 0.0],
               'Initial and reset joint velocities (single_link_geared: first value = link '
-              'speed)', 'rad/s', minimum=-1000.0, maximum=1000.0, per_joint=True, fill=0.0),
+              'speed); within fault_velocity_factor times velocity_limits and within '
+              'velocity_limit (refused beyond: a fault at once)', 'rad/s', minimum=-1000.0,
+              maximum=1000.0, per_joint=True, fill=0.0, relation=initial_velocity_reason),
     ParamSpec('command_timeout', 'double', 0.5,
               'Wall-clock time without a valid command that is reported (a WARN with the '
               'time waited); time keeps standing still until the answer comes. wall_clock '
@@ -177,11 +188,8 @@ class SimulatorNode(Node):
                 raise ConfigError(str(exc)) from None
             envelope = joint_limits.envelope(p['fault_position_margin'],
                                              p['fault_velocity_factor'])
-            outside = envelope.position_violation(q0, 'initial position')
-            if outside:
-                raise ConfigError(f'{outside}, beyond the runaway envelope (joint limits '
-                                  f"plus fault_position_margin {p['fault_position_margin']:g}"
-                                  ' rad)')
+            # An initial state beyond it was refused by declare_parameters (the relations
+            # of initial_positions and initial_velocities), as a run-time change is.
         self.core = SimulatorCore(model, q0=q0, qd0=qd0, effort_limits=limits,
                                   physics_step_ns=step_ns, control_period_ns=period_ns,
                                   velocity_limit=p['velocity_limit'],
@@ -211,7 +219,8 @@ class SimulatorNode(Node):
         self._anchors = 0  # keeper.anchors when the pacing timer was last aligned
         self._make_rt_timer()
         self.create_timer(0.05, self._housekeeping, clock=steady_clock())
-        on_parameter_changes(self, SIM_PARAMS, self._validate_change, self._apply_change)
+        on_parameter_changes(self, SIM_PARAMS, self._validate_change, self._apply_change,
+                             values=self.params)
         self.publish_state(new_state=True)
         self.get_logger().info(
             f"{p['model']} in {p['timing_mode']} mode: physics step {p['physics_step']:g} s, "
@@ -231,12 +240,7 @@ class SimulatorNode(Node):
             if values is not None and not (len(values) == joints or self.geared and values):
                 return (f'{key} has {len(values)} values but the robot has {joints} joints '
                         f'(got {list(values)})')
-        q0 = changed.get('initial_positions')
-        if q0 is not None and self.core.envelope is not None:
-            outside = self.core.envelope.position_violation(q0, 'initial position')
-            if outside:
-                return f'{outside}, beyond the runaway envelope'
-        return None
+        return None  # then the relations, as at start (initial state within the envelope)
 
     def _apply_change(self, changed: dict) -> None:
         self.params.update(changed)
@@ -295,6 +299,7 @@ class SimulatorNode(Node):
             kind = 'runaway' if core.diverged.startswith('runaway') else 'diverged'
             self.diag.problem(kind, core.diverged, 'ERROR', q=core.q.tolist(),
                               qd=core.qd.tolist())
+            self._summarise()  # every summary from now on says ERROR, until ~/reset
         elif not core.diverged:
             outside = core.outside_limits
             if outside:
@@ -505,6 +510,7 @@ class SimulatorNode(Node):
             self._try_step()
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response):
+        faulted = self.core.diverged
         self.core.reset()
         self.keeper.reanchor(time.monotonic_ns())
         self.publish_state(new_state=True)
@@ -512,6 +518,10 @@ class SimulatorNode(Node):
         response.message = (f'reset to q={self.core.q.tolist()} qd={self.core.qd.tolist()} '
                             f'at t={self.core.time:.3f} s')
         self.get_logger().info(response.message)
+        # Said at once (event 'reset'), with the fault it cleared, and in the summary: a
+        # planner refusing goals for the fault learns it is over.
+        self.diag.event('reset', response.message, cleared=faulted or '')
+        self._summarise()
         return response
 
 

@@ -9,6 +9,7 @@ from arm_planner.planner import (
     PlannerSettings,
     make_arm,
     plan_goal,
+    plan_path_stop,
     plan_regulation,
     plan_stop,
     plan_straight_line,
@@ -16,5 +17,5 @@ from arm_planner.planner import (
 from arm_planner.time_scaling import TimeScaling, from_limits
 
 __all__ = ['Plan', 'PlannerSettings', 'PlanningError', 'TimeScaling', 'check_point',
-           'from_limits', 'make_arm', 'plan_goal', 'plan_regulation', 'plan_stop',
-           'plan_straight_line']
+           'from_limits', 'make_arm', 'plan_goal', 'plan_path_stop', 'plan_regulation',
+           'plan_stop', 'plan_straight_line']

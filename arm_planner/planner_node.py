@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Duration, Time
-from diagnostic_msgs.msg import DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
@@ -26,12 +26,14 @@ from std_srvs.srv import SetBool
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from arm_common.node import (
+    SUMMARY_TASK,
     ConfigError,
     Diagnostics,
     clock_in_namespace,
     declare_parameters,
     latched_qos,
     on_parameter_changes,
+    parse_status_name,
     run_node,
     steady_clock,
 )
@@ -47,6 +49,7 @@ from arm_planner.planner import (
     MAX_DURATION,
     MODES,
     PROFILES,
+    REST_SPEED,
     Plan,
     PlannerSettings,
     make_arm,
@@ -87,7 +90,11 @@ each goal the planner first holds the simulator's time (its hold_service, std_sr
 default simulator/hold) at the current state, plans from exactly that state, and releases
 the hold once the controller has confirmed (or refused) the trajectory, so the motion
 starts at the state it was planned from. Without that service (another simulator, a real
-arm) it plans from the latest joint state, as before.
+arm) it plans from the latest joint state, as before; a plan from an arm at rest is then
+stamped 0 (on arrival), so a short one is never refused as ended before it arrived.
+
+While the simulator reports a fault on /diagnostics (runaway or diverged: the arm is held
+frozen), every goal is refused naming the fault and the simulator's ~/reset.
 '''
 
 PLANNER_PARAMS: tuple[ParamSpec, ...] = (
@@ -131,9 +138,15 @@ PLANNER_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('hold_service', 'string', 'simulator/hold',
               "The simulator's hold service (std_srvs/SetBool), relative to the "
               "planner's namespace: simulated time is held at the current state while a goal "
-              'is planned and confirmed, so it starts exactly there; empty = never hold',
-              read_only=True),
+              'is planned and confirmed, so it starts exactly there; empty = never hold. '
+              "Its node (simulator) is the one whose faults on /diagnostics refuse goals",
+              read_only=True, allow_empty=True),
 )
+
+#: The simulator's fault statuses (arm_dynamics.simulator_node: the tasks of a runaway and
+#: of a diverged integration, and the prefixes of its ERROR summary while faulted).
+FAULT_TASKS = ('runaway', 'diverged')
+FAULT_SUMMARIES = ('runaway', 'integration diverged')
 
 
 def settings_from(params: dict[str, Any]) -> PlannerSettings:
@@ -143,6 +156,11 @@ def settings_from(params: dict[str, Any]) -> PlannerSettings:
                                   and not isinstance(params[n], bool) else params[n])
                               for n in names}
     return PlannerSettings(**values)
+
+
+def _level(level: bytes | int) -> int:
+    """A DiagnosticStatus level (a byte in Python messages) as an int."""
+    return level if isinstance(level, int) else level[0]
 
 
 def _duration(seconds: float) -> Duration:
@@ -237,6 +255,14 @@ class PlannerNode(Node):
         self.hold_client = (self.create_client(SetBool, p['hold_service'])
                             if p['hold_service'] else None)
         self.holding = False  # we hold the simulator's time
+        self.held_ns: int | None = None  # ... at the state of this stamp (its reply said)
+        # The simulator whose faults refuse goals: the node of the hold service, else the
+        # one named simulator in our namespace; its fault (the reason), while it lasts.
+        hold = self.resolve_service_name(p['hold_service']) if p['hold_service'] else ''
+        self.simulator = (hold.rsplit('/', 1)[0] if hold.endswith('/hold') else
+                          f"{self.get_namespace().rstrip('/')}/simulator")
+        self.fault: str | None = None
+        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
         # The goal whose hold reply is awaited: (goal, its number, wall deadline).
         self.hold_wait: tuple[tuple[float, float], int, float] | None = None
         self.goals = 0
@@ -309,6 +335,42 @@ class PlannerNode(Node):
             self.diag.problem('internal_error', f'joint_states handling failed: {exc!r}',
                               'ERROR')
 
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        """Follow the simulator's fault: a runaway or diverged integration holds the arm
+        frozen until its ``~/reset``, so goals are refused until then, naming it. Set by the
+        fault's report (or an ERROR summary naming it), cleared by the reset's report (or
+        a summary that no longer does); the simulator updates its summary at both."""
+        try:
+            for status in msg.status:
+                named = parse_status_name(status.name)
+                if named is None or named[0] != self.simulator:
+                    continue
+                task = named[1]
+                event = any(kv.key == 'event' for kv in status.values)
+                error = _level(status.level) == _level(DiagnosticStatus.ERROR)
+                if task in FAULT_TASKS and event and error:
+                    self.fault = status.message
+                elif task == 'reset' and event:
+                    self.fault = None
+                elif task == SUMMARY_TASK:
+                    faulted = error and status.message.startswith(FAULT_SUMMARIES)
+                    self.fault = status.message if faulted else None
+        except Exception as exc:  # never die on a message
+            self.diag.problem('internal_error', f'/diagnostics handling failed: {exc!r}',
+                              'ERROR')
+
+    def _refuse_for_fault(self, goal: tuple[float, float]) -> bool:
+        """Refuse ``goal`` (True) while the simulator reports a fault, naming it and the
+        way out: nothing can move the frozen arm until the simulator's ~/reset."""
+        if self.fault is None:
+            return False
+        reset = f'{self.simulator}/reset'
+        self.diag.problem('goal_refused', f'goal_pose refused: the simulator reports a fault '
+                          f'and holds the arm frozen: {self.fault}. Reset it first: its '
+                          f'~/reset service (ros2 service call {reset} std_srvs/srv/Trigger)',
+                          goal_x=goal[0], goal_y=goal[1])
+        return True
+
     def _on_goal(self, msg: PoseStamped) -> None:
         try:
             self._handle_goal(msg)
@@ -329,6 +391,8 @@ class PlannerNode(Node):
                               f'(x, y) = {goal.tolist()}', goal_x=goal[0], goal_y=goal[1])
             return
         target = (float(goal[0]), float(goal[1]))
+        if self._refuse_for_fault(target):
+            return
         if self.q is None:  # e.g. sent right after start-up: plan it from the first state
             self.held_goal = (target, time.monotonic() + STATE_WAIT)
             self.diag.problem('waiting_for_state', 'goal_pose held: no joint_states received '
@@ -362,7 +426,7 @@ class PlannerNode(Node):
                                   f'({reply!r}): goal planned from the latest state')
                 self._plan(goal, sends=0)
                 return
-            self.holding = True
+            self.holding, self.held_ns = True, held
             if self.t_ns == held:
                 self._plan(goal, sends=0)
             else:  # its state is still on the way to us
@@ -374,7 +438,7 @@ class PlannerNode(Node):
     def _release(self) -> None:
         """Let the simulator's time move on again (if we hold it)."""
         if self.holding and self.hold_client is not None:
-            self.holding = False
+            self.holding, self.held_ns = False, None
             self.hold_client.call_async(SetBool.Request(data=False))
 
     def _release_if_idle(self) -> None:
@@ -393,6 +457,16 @@ class PlannerNode(Node):
         out already)."""
         q, qd, t_ns = (start[0], None, start[1]) if start is not None else (
             self.q, self.qd, self.t_ns)
+        if self._refuse_for_fault(goal):
+            return
+        at_rest = qd is None or bool((np.abs(qd) < REST_SPEED).all())
+        if start is None and at_rest and not (self.holding and self.held_ns == t_ns):
+            # Time runs on while we plan (no hold: none offered, it failed, or a re-send):
+            # stamped with the state's time, a plan shorter than the planning took would
+            # reach the controller already ended ("ends in the past"), a goal at the arm's
+            # own position (a set point, 0 s) always. The arm is at rest and held where it
+            # is, so the motion may start whenever it arrives: stamped 0, "on arrival".
+            t_ns = 0
         try:
             plan = plan_goal(self.arm, self.limits, q, np.array(goal),
                              settings_from(self.params), self.joint_limits, qd_current=qd)
@@ -416,8 +490,7 @@ class PlannerNode(Node):
             return
         self.sent = None
         self._release_if_idle()  # confirmed or refused: time may move on
-        level = status.level if isinstance(status.level, int) else status.level[0]
-        if level == 0:
+        if _level(status.level) == 0:
             self.active = (sent['stamp'], sent['goal'])
             self.diag.event('plan_accepted', f"controller: {status.message}",
                             start_time=f"{sent['stamp'] * 1e-9:.9f}")

@@ -3,7 +3,10 @@
 The parameters come as the nodes take them: a params file's ``/**`` section (where
 config/arm.yaml keeps the robot description; other keys there are ignored), then
 ``-p name:=value`` rules, which win. The launch file gives robot_state_publisher the same
-text through :func:`urdf_for_params_file`.
+text through :func:`urdf_for_params_file`. The values are validated by the code every
+node's start runs (:func:`arm_dynamics.robot.resolve_robot`, i.e.
+:func:`arm_common.params.resolve`): a value a node refuses is refused here in the same
+words (``-p joint_names:=[a,a]``), one it takes is taken (``-p link_lengths:=[1,0.8]``).
 """
 
 from __future__ import annotations

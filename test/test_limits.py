@@ -89,8 +89,10 @@ def test_a_runaway_is_a_fault_that_holds_the_last_good_state_until_reset():
     assert sim.diverged.startswith('runaway at t=') and 'joint 2' in sim.diverged
     held = (sim.q.copy(), sim.qd.copy())
     assert LIMITS.envelope(0.5, 2.0).contains(*held), 'the last good state is inside'
+    assert held[1].tolist() == [0.0, 0.0], 'the last good position, held at rest'
     sim.advance()
     assert np.array_equal(sim.q, held[0]) and sim.applied.tolist() == [0.0, 0.0]
+    assert sim.qd.tolist() == [0.0, 0.0] and sim.joint_view().velocity == [0.0, 0.0]
     sim.reset()
     assert sim.diverged is None and sim.q.tolist() == Q0.tolist()
     sim.advance()
@@ -246,3 +248,31 @@ def test_random_goals_settings_and_trajectories_never_escape_the_limits_or_raise
             assert np.isfinite(tau).all() and (np.abs(tau) <= EFFORT).all(), (case, tau)
         ctl.hold(float(traj.times[-1]) + 1.0, Q0, np.zeros(2))
         ctl.last = None
+
+
+def test_an_initial_state_the_first_step_would_fault_on_is_named_with_its_bound():
+    from arm_dynamics.robot import ROBOT_DEFAULTS
+    from arm_dynamics.simulation import initial_position_reason, initial_velocity_reason
+
+    sim = {**ROBOT_DEFAULTS, 'fault_position_margin': 0.5, 'fault_velocity_factor': 2.0,
+           'velocity_limit': 1000.0, 'initial_positions': [-0.4, 1.2],
+           'initial_velocities': [0.0, 0.0], 'geared.gear_ratio': 50.0}
+    assert initial_position_reason(sim) is None and initial_velocity_reason(sim) is None
+    at_edge = {**sim, 'initial_positions': [2 * np.pi + 0.5, 0.0],
+               'initial_velocities': [-16.0, 16.0]}  # on the envelope: allowed
+    assert initial_position_reason(at_edge) is None and initial_velocity_reason(at_edge) is None
+    assert initial_velocity_reason({**sim, 'initial_velocities': [990.0, -990.0]}) == (
+        'initial_velocities: joint 1 initial speed 990 rad/s > limit 16 rad/s, beyond the '
+        'runaway envelope (velocity_limits times fault_velocity_factor 2): the first step '
+        'would be a runaway fault')
+    assert initial_position_reason({**sim, 'initial_positions': [0.0, -3.7]}).startswith(
+        'initial_positions: joint 2 initial position -3.7 rad < lower limit -3.64159 rad')
+    slow_limit = {**sim, 'velocity_limit': 10.0, 'initial_velocities': [0.0, 12.0]}
+    assert 'joint 2 initial speed 12 rad/s > velocity_limit 10 rad/s' in (
+        initial_velocity_reason(slow_limit))
+    # The geared link has no joint limits; its motor turns gear_ratio times the link.
+    geared = {**sim, 'model': 'single_link_geared', 'initial_positions': [50.0, 0.0]}
+    assert initial_position_reason(geared) is None
+    assert initial_velocity_reason({**geared, 'initial_velocities': [19.0, 0.0]}) is None
+    assert 'motor initial speed (link x gear_ratio 50) 1050 rad/s > velocity_limit' in (
+        initial_velocity_reason({**geared, 'initial_velocities': [21.0, 0.0]}))

@@ -161,3 +161,48 @@ def test_per_joint_parameters_not_given_are_declared_sized_for_the_chain(ros, la
     assert got['effort_limits'][1] == [60.0, 20.0, 20.0]
     assert got['gains.kp'][1] == [100.0, 60.0, 60.0]
     assert got['control_model.link_masses'][1] == []
+
+
+def node_specs(node: str) -> tuple:
+    """The ParamSpecs ``node`` declares (the robot's and its own)."""
+    from importlib import import_module
+
+    from arm_dynamics.robot import ROBOT_PARAMS
+    module, table = {'simulator': ('arm_dynamics.simulator_node', 'SIM_PARAMS'),
+                     'controller': ('arm_control.controller_node', 'CONTROL_PARAMS'),
+                     'planner': ('arm_planner.planner_node', 'PLANNER_PARAMS'),
+                     'recorder': ('arm_bag.recorder_node', 'RECORDER_PARAMS'),
+                     'visualizer': ('arm_sim.visualizer_node', 'VISUALIZER_PARAMS')}[node]
+    return ROBOT_PARAMS + getattr(import_module(module), table)
+
+
+#: The ROS type each ParamSpec kind must describe and hold as.
+ROS_TYPE = {'double': ParameterType.PARAMETER_DOUBLE,
+            'doubles': ParameterType.PARAMETER_DOUBLE_ARRAY,
+            'string': ParameterType.PARAMETER_STRING,
+            'strings': ParameterType.PARAMETER_STRING_ARRAY,
+            'int': ParameterType.PARAMETER_INTEGER, 'bool': ParameterType.PARAMETER_BOOL}
+
+
+@pytest.mark.parametrize('node', ['controller', 'simulator', 'planner', 'recorder',
+                                  'visualizer'])
+def test_every_parameter_describes_and_holds_its_real_type(node, ros, launch, tmp_path):
+    """``ros2 param describe`` and ``ros2 param get`` show each parameter's own type: an
+    empty list default (the controller's ``control_model.*``) is a double array, not the
+    byte array rclpy makes of an untyped ``[]``; the read-only flag survives."""
+    params = {'output': str(tmp_path / 'bag')} if node == 'recorder' else None
+    launch(node, params_file=CONFIG, params=params)
+    wait_ready(ros, node)
+    specs = node_specs(node)
+    names = [s.name for s in specs]
+    described = ros.call(DescribeParameters, f'/{node}/describe_parameters',
+                         DescribeParameters.Request(names=names)).descriptors
+    held = parameters(ros, node)
+    wrong = {s.name: (d.type, held[s.name][0], ROS_TYPE[s.kind])
+             for s, d in zip(specs, described)
+             if not d.type == held[s.name][0] == ROS_TYPE[s.kind]}
+    assert not wrong, f'(described, held, expected) types: {wrong}'
+    assert all(d.read_only == s.read_only for s, d in zip(specs, described))
+    if node == 'controller':
+        assert held['control_model.link_lengths'] == (
+            ParameterType.PARAMETER_DOUBLE_ARRAY, []), 'empty: the robot parameter is used'

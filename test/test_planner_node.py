@@ -245,3 +245,95 @@ def test_help_and_refused_start_parameters(tmp_path):
     out = proc.output()
     assert 'mode must be one of' in out and 'max_speed must be > 0 m/s' in out
     assert 'Traceback' not in out
+
+
+def test_after_a_runaway_goals_are_refused_naming_the_fault_and_the_reset(ros, launch):
+    """A runaway fault freezes the arm until the simulator's ~/reset; the frozen state is
+    published at rest. A goal meanwhile is refused naming the fault and the reset (it was
+    refused as 'the arm moving at ... rad/s', from the frozen state's last velocity);
+    after the reset goals are planned again."""
+    from std_msgs.msg import Float64MultiArray
+    from std_srvs.srv import Trigger
+
+    from arm_sim.client import stamp_of
+
+    launch('simulator', params={'timing_mode': 'lockstep'})
+    launch('planner')
+    states = ros.collect(JointState, 'joint_states')
+    trajs = ros.collect(JointTrajectory, TRAJECTORY)  # a subscriber: plans are sent
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    commands = ros.publisher(Float64MultiArray, 'effort_controller/commands')
+    goals = connect(ros, diags)
+    answered: set[float] = set()
+
+    def drive() -> None:  # a lockstep controller spinning the elbow up at full torque
+        if states and stamp_of(states[-1]) not in answered:
+            answered.add(stamp_of(states[-1]))
+            commands.publish(Float64MultiArray(data=[0.0, 20.0]))
+
+    fault = ros.wait_for(lambda: drive() or events(diags, '/simulator', 'runaway'),
+                         timeout=60, what='the runaway')[0]
+    n = len(states)
+    ros.wait_for(lambda: drive() or len(states) > n + 3, what='states after the fault')
+    assert all(list(m.velocity) == [0.0, 0.0] for m in states[n + 1:]), 'frozen at rest'
+
+    def refusals() -> list[str]:  # immediate reports only (periodic ones repeat them)
+        return [s.message for s in events(diags, '/planner', 'goal_refused')
+                if 'fault' in s.message]
+
+    # Sent until the planner, which learns of the fault on /diagnostics, refuses one.
+    ros.wait_for(lambda: goals.publish(goal_msg(0.5, 1.0)) or spin_for(ros, 0.2)
+                 or refusals(), 20, 'a goal refused for the fault')
+    words = refusals()[-1]
+    assert fault.message.split(':')[0] in words and 'runaway at t=' in words, words
+    assert '~/reset' in words and 'ros2 service call /simulator/reset' in words, words
+    assert 'moving at' not in words
+    assert ros.call(Trigger, '/simulator/reset', Trigger.Request()).success
+    n, k = len(trajs), len(refusals())
+    ros.wait_for(lambda: goals.publish(goal_msg(0.5, 1.0)) or spin_for(ros, 0.2)
+                 or len(trajs) > n, 20, 'a goal planned after the reset')
+    assert np.abs(last_point_fk(trajs[-1]) - [0.5, 1.0]).max() < 1e-9
+    assert len(refusals()) == k, 'no goal refused for the fault once it was reset'
+
+
+@pytest.mark.parametrize('hold', ['simulator/hold', ''])
+@pytest.mark.parametrize('timing_mode', ['lockstep', 'real_time'])
+def test_a_goal_at_or_millimetres_from_the_arm_is_accepted_at_once(timing_mode, hold, ros,
+                                                                   launch):
+    """A goal at the tip, within the line tolerance of it, or a few mm away: the first
+    trajectory the controller gets for it is accepted. Planned while simulated time ran
+    on (no hold: none offered, here hold_service empty), such a plan stamped with the
+    state's time had ended before it reached the controller, refused as 'ends in the
+    past' and re-planned into the same fate (a set point, 0 s long, always)."""
+    from arm_sim.launcher import config_file
+
+    launch('simulator', params_file=config_file(), params={'timing_mode': timing_mode})
+    launch('controller', params_file=config_file())
+    launch('planner', params_file=config_file(),
+           params={'mode': 'straight_line', 'hold_service': hold})
+    states = ros.collect(JointState, 'joint_states')
+    # Latched, as the controller publishes it: a verdict is not lost to a late match.
+    verdicts = ros.collect(DiagnosticStatus, 'arm_controller/trajectory_status',
+                           qos=latched_qos())
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    goals = connect(ros, diags)
+    wait_ready(ros, diags)
+    ros.wait_for(lambda: ros.node.count_publishers('/arm_controller/trajectory_status'), 10,
+                 'the controller to publish its verdicts')
+    ros.wait_for(lambda: states and states[-1].header.stamp.sec >= 1, 30,
+                 'the loop to run a second')
+    for offset in (0.0, 1e-6, 3e-3):
+        tip = ARM.forward_kinematics(np.array(states[-1].position))
+        n, k = len(verdicts), len(diag_texts(diags, 'plan_sent'))
+        goals.publish(goal_msg(tip[0] + offset, tip[1]))
+        try:
+            ros.wait_for(lambda: len(verdicts) > n, 20, f'the verdict on the goal {offset} m')
+        except pytest.fail.Exception:
+            pytest.fail(f'no verdict on the goal {offset} m off; the planner said '
+                        f'{[x.message for x in statuses(diags, "/planner")][-4:]}')
+        spin_for(ros, 0.3)
+        got = [v.message for v in verdicts[n:]]
+        assert got[0].startswith('accepted'), (offset, got)
+        assert not any(m.startswith('refused') for m in got), (offset, got)
+        assert not diag_texts(diags, 'goal_refused_by_controller'), offset
+        assert len(diag_texts(diags, 'plan_sent')) > k
