@@ -230,6 +230,7 @@ def analyze_data(bag: BagData) -> Report:
     if len(trajs) < len(bag.trajectories):
         warnings.append(f'{len(bag.trajectories) - len(trajs)} trajectories with other '
                         f'joint names or no points ignored')
+    trajs = _valid_trajectories(trajs, warnings)
     run = {'duration': float(t[-1]), 'samples': len(js)}
     run.update(_torque(js.effort, js.position, limits, slice(None), js.names))
     segments: list[Segment] = []
@@ -257,6 +258,32 @@ def analyze_data(bag: BagData) -> Report:
                   message_counts={k: v[1] for k, v in sorted(bag.topics.items())},
                   truncated=bag.truncated, warnings=warnings, run=_clean(run),
                   segments=segments)
+
+
+def _valid_trajectories(trajs, warnings: list[str]) -> list:
+    """The trajectories the controller accepts (:func:`arm_control.trajectory.
+    validate_trajectory`: finite values, increasing times, ...); each one it refuses is
+    listed in ``warnings`` as refused, with the controller's reason, and starts no
+    segment (the controller kept its reference, so the states after it stay in the
+    segment before)."""
+    from arm_control.trajectory import TrajectoryError, TrajectoryPoint, validate_trajectory
+
+    kept = []
+    for tr in trajs:
+        m = tr.trajectory
+        n = len(m.positions)
+        points = [TrajectoryPoint(float(m.time_from_start[k]), m.positions[k],
+                                  m.velocities[k] if k < len(m.velocities) else (),
+                                  m.accelerations[k] if k < len(m.accelerations) else ())
+                  for k in range(n)]
+        try:
+            validate_trajectory(m.joint_names, points, m.joint_names)
+        except TrajectoryError as exc:
+            warnings.append(f'trajectory received at {tr.log_time} ns (stamp {m.stamp} ns) '
+                            f'refused as the controller refuses it ({exc}): not a segment')
+            continue
+        kept.append(tr)
+    return kept
 
 
 def _segment_starts(trajs, js: JointStates, t_ns: np.ndarray, warnings: list[str]) -> list[int]:

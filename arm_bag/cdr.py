@@ -256,24 +256,27 @@ def decode_joint_states_bulk(buf: np.ndarray, offsets: np.ndarray,
 @dataclass
 class JointTrajectoryMsg:
     """A decoded trajectory_msgs/JointTrajectory: ``positions`` (P, J) rad,
-    ``time_from_start`` (P,) s; ``stamp`` [ns] (0 = start now). Not the controller's
-    :class:`arm_control.trajectory.Trajectory`, which samples a motion."""
+    ``time_from_start`` (P,) s; ``stamp`` [ns] (0 = start now); ``velocities`` [rad/s] and
+    ``accelerations`` [rad/s^2]: per point, as received (possibly empty). Not the
+    controller's :class:`arm_control.trajectory.Trajectory`, which samples a motion."""
 
     stamp: int
     joint_names: tuple[str, ...]
     positions: np.ndarray
     time_from_start: np.ndarray
+    velocities: tuple[np.ndarray, ...] = ()
+    accelerations: tuple[np.ndarray, ...] = ()
 
 
 def decode_joint_trajectory(data: bytes | memoryview) -> JointTrajectoryMsg:
     c = Cursor(data)
     stamp, _ = c.header()
     names = tuple(c.strings())
-    rows, times = [], []
+    rows, times, vels, accs = [], [], [], []
     for _ in range(c.u32()):
         pos = c.float64s()
-        c.float64s()
-        c.float64s()
+        vels.append(c.float64s())
+        accs.append(c.float64s())
         c.float64s()
         rows.append(pos)
         times.append(c.time() * 1e-9)
@@ -281,7 +284,8 @@ def decode_joint_trajectory(data: bytes | memoryview) -> JointTrajectoryMsg:
     if any(len(r) != width for r in rows):
         raise CdrError(f'trajectory point positions do not match the {width} joint names')
     positions = np.array(rows, dtype=np.float64).reshape(len(rows), width)
-    return JointTrajectoryMsg(stamp, names, positions, np.array(times, dtype=np.float64))
+    return JointTrajectoryMsg(stamp, names, positions, np.array(times, dtype=np.float64),
+                              tuple(vels), tuple(accs))
 
 
 def _pose_xy(c: Cursor) -> tuple[float, float]:
@@ -362,17 +366,20 @@ def encode_joint_state(stamp_ns: int, names, position, velocity, effort,
     return bytes(w.buf)
 
 
-def encode_joint_trajectory(stamp_ns: int, names, positions, times_s) -> bytes:
-    """trajectory_msgs/JointTrajectory (positions only) as CDR bytes."""
+def encode_joint_trajectory(stamp_ns: int, names, positions, times_s,
+                            velocities=None) -> bytes:
+    """trajectory_msgs/JointTrajectory (positions, and ``velocities`` per point if given)
+    as CDR bytes."""
     w = Writer()
     w.header(stamp_ns)
     w.u32(len(names))
     for n in names:
         w.string(n)
     w.u32(len(positions))
-    for row, t in zip(positions, times_s):
+    for k, (row, t) in enumerate(zip(positions, times_s)):
         w.float64s(row)
-        for _ in range(3):
+        w.float64s([] if velocities is None else velocities[k])
+        for _ in range(2):
             w.float64s([])
         w.time(int(round(t * 1e9)))
     return bytes(w.buf)

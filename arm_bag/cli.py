@@ -2,7 +2,8 @@
 ``arm-sim bag recover BAG``: make a damaged or unfinished bag complete (arm_bag.recover).
 
 Exit codes: 0 every bag analysed / a complete bag written; 2 usage error; 3 a bag holds
-nothing analysable (no joint states); 4 a path is not a bag, is unreadable or damaged
+nothing analysable (no joint states); 4 a path is not a bag, is not a regular file (a FIFO,
+device or socket: refused naming its kind, never opened), is unreadable or damaged
 (``analyze``), or holds nothing recoverable (``bag recover``). Errors are one line on stderr;
 warnings (truncated bag, no metadata, default robot parameters, ...) are printed as
 ``warning: ...`` lines on stderr and never change the exit code.
@@ -15,6 +16,14 @@ import json
 import sys
 
 EXIT_OK, EXIT_USAGE, EXIT_NOTHING, EXIT_UNREADABLE = 0, 2, 3, 4
+
+
+def reason(exc: BaseException) -> str:
+    """What went wrong, as words: never empty (a bare MemoryError has no message)."""
+    if isinstance(exc, MemoryError):
+        return f'out of memory ({exc})' if str(exc) else 'out of memory'
+    text = str(getattr(exc, 'strerror', None) or exc)
+    return ' '.join(text.split()) or type(exc).__name__
 
 
 def add_analyze_parser(subparsers) -> argparse.ArgumentParser:
@@ -48,11 +57,11 @@ def analyze_one(path: str) -> tuple[str, object]:
     try:
         return 'ok', analyze(path)
     except BagError as exc:
-        return 'unreadable', str(exc)
+        return 'unreadable', reason(exc)
     except NothingToAnalyse as exc:
-        return 'nothing', f'nothing to analyse: {exc}'
+        return 'nothing', f'nothing to analyse: {reason(exc)}'
     except (OSError, MemoryError) as exc:
-        return 'unreadable', f'{path}: cannot read: {exc}'
+        return 'unreadable', f'{path}: cannot read: {reason(exc)}'
 
 
 def run_analyze(args: argparse.Namespace) -> int:
@@ -128,15 +137,16 @@ def add_bag_parser(subparsers) -> argparse.ArgumentParser:
 
 def run_recover(args: argparse.Namespace) -> int:
     """Run ``bag recover``; returns the exit code (never raises for bad input)."""
-    from arm_bag.recover import RecoveryError, recover_bag
+    from arm_bag.bagfile import BagError
+    from arm_bag.recover import recover_bag
 
     try:
         report = recover_bag(args.bag, args.output)
-    except RecoveryError as exc:
-        print(f'arm-sim bag recover: {exc}', file=sys.stderr)
+    except BagError as exc:  # RecoveryError, a file that is not a regular file, ...
+        print(f'arm-sim bag recover: {reason(exc)}', file=sys.stderr)
         return EXIT_UNREADABLE
     except (OSError, MemoryError) as exc:
-        print(f'arm-sim bag recover: {args.bag}: {exc}', file=sys.stderr)
+        print(f'arm-sim bag recover: {args.bag}: {reason(exc)}', file=sys.stderr)
         return EXIT_UNREADABLE
     written = ', '.join(report.files) or 'nothing rewritten (already intact)'
     print(f'{report.output}: {report.summary()}; written: {written}')

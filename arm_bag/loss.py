@@ -14,6 +14,11 @@ and are not:
 
 So a reported loss is a real one; what can go uncounted is loss in the moments just after
 a publisher comes or goes (DDS "message lost" events cover those where DDS sees them).
+
+A publisher that appears while the recorder records (a late topic, or a node started
+later) publishes from number 1 on, and what it sends before the recorder's subscription
+is matched to it never arrives (a volatile publisher does not keep it): the number of the
+first message received from it says how many that was (:func:`missed_before_first`).
 """
 
 from __future__ import annotations
@@ -69,3 +74,22 @@ class GapCounter:
         n, self.pending = self.pending, 0
         self.lost += n
         return n
+
+
+def missed_before_first(seq: int, publishers: int, appeared_while_recording: bool) -> int:
+    """Messages a publisher sent before the first one the recorder received from it.
+
+    ``seq``: that first message's publication sequence number (0 = unknown);
+    ``publishers``: how many publishers (of the recorded type) the topic has;
+    ``appeared_while_recording``: the recorder saw the publisher appear after it had
+    itself been up long enough to see every publisher that existed when it started.
+
+    Returns ``seq - 1`` when the topic has one publisher (so the message is its) that
+    appeared while the recording ran (so it sent all of them while the recorder was
+    recording, and they never reached it), else 0: with several publishers it is not
+    known whose number it is, and a publisher that may have existed before the recorder
+    sent its first messages before there was anything to record them.
+    """
+    if seq <= 1 or publishers != 1 or not appeared_while_recording:
+        return 0
+    return seq - 1

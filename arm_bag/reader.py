@@ -17,14 +17,18 @@ when set, message indexes against their message records); any damage raises
 follow the recording marker (:mod:`arm_bag.bagfile`): a bag marked ``open`` whose file a
 recorder still locks is read up to its last complete record (a warning says so, the file
 is not touched), and one whose recorder died is recovered in place first
-(:func:`arm_bag.recover.recover_bag`, one warning). A file without ``metadata.yaml`` is
-fine. Problems that still allow analysis are listed in ``BagData.warnings``.
+(:func:`arm_bag.recover.recover_bag`, one warning), whether the bag directory or its
+``.mcap`` file (listed by the directory's ``metadata.yaml``) is named. A file without
+``metadata.yaml`` is fine. Problems that still allow analysis are listed in
+``BagData.warnings``. Only regular files are read: a FIFO, device or socket is refused
+(:class:`BagError` naming it and its kind) and never opened.
 """
 from __future__ import annotations
 
 import json
 import mmap
 import os
+import stat
 import struct
 import zlib
 from collections.abc import Callable
@@ -50,8 +54,12 @@ from arm_bag.bagfile import (
     RECORDING_OPEN,
     BagError,
     is_locked,
+    open_regular,
+    path_stat,
+    read_metadata_text,
     recording_state,
     recover_hint,
+    regular_file,
 )
 from arm_bag.cdr import (
     CdrError,
@@ -619,42 +627,56 @@ def _gather_u64(buf: np.ndarray, offs: np.ndarray, at: int) -> np.ndarray:
 # ---------------------------------------------------------------------- bag level
 def mcap_files(path: str | Path) -> tuple[list[Path], dict | None, list[str]]:
     """The MCAP file(s) of a bag directory or a bare ``.mcap``, its metadata (or None)
-    and warnings; raises :class:`BagError` if there is no bag at ``path``."""
+    and warnings; raises :class:`BagError` if there is no bag at ``path`` or a file of it
+    is not a regular file (a FIFO, a device, a socket: named with its kind, never opened)."""
     p = Path(path)
     warnings: list[str] = []
-    if p.is_file():
+    st = path_stat(p)
+    if not stat.S_ISDIR(st.st_mode):
+        regular_file(p)
         return [p], None, warnings
-    if not p.is_dir():
-        raise BagError(f'{path}: no such file or directory')
     meta = None
     meta_path = p / 'metadata.yaml'
-    if meta_path.is_file():
-        import yaml
+    files: list[Path] = []
+    import yaml
 
+    try:
+        text = read_metadata_text(meta_path)
+    except (BagError, OSError, UnicodeDecodeError) as exc:
+        warnings.append(f'{meta_path}: unreadable ({_why(exc)}); ignoring it')
+        text = None
+    else:
+        if text is None:
+            warnings.append(f'{path}: no metadata.yaml; reading the .mcap files found there')
+    if text is not None:
         try:
-            doc = yaml.load(meta_path.read_text(),  # libyaml when present: ~20x faster
+            doc = yaml.load(text,  # libyaml when present: ~20x faster
                             Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader))
             meta = doc['rosbag2_bagfile_information']
             files = [p / f for f in meta.get('relative_file_paths', [])]
-        except (yaml.YAMLError, KeyError, TypeError, OSError, UnicodeDecodeError) as exc:
+        except (yaml.YAMLError, KeyError, TypeError, AttributeError) as exc:
             warnings.append(f'{meta_path}: unreadable ({type(exc).__name__}); ignoring it')
             meta, files = None, []
         if meta is not None and meta.get('storage_identifier') not in (None, 'mcap'):
             raise BagError(f"{path}: storage {meta.get('storage_identifier')!r} is not "
                            'supported (only mcap)')
-        missing = [f for f in files if not f.is_file()]
+        missing = [f for f in files if not os.path.exists(f)]
         if missing:
             warnings.append(f'{path}: files named in metadata.yaml are missing: '
                             + ', '.join(f.name for f in missing))
-        files = [f for f in files if f.is_file()]
-    else:
-        warnings.append(f'{path}: no metadata.yaml; reading the .mcap files found there')
-        files = []
+        files = [f for f in files if f not in missing]
     if not files:
         files = sorted(p.glob('*.mcap'))
     if not files:
         raise BagError(f'{path}: not a bag (no .mcap file)')
+    for f in files:  # a FIFO, device, socket or directory is refused, never opened
+        regular_file(f)
     return files, meta, warnings
+
+
+def _why(exc: BaseException) -> str:
+    """The reason ``exc`` gives, never empty."""
+    return str(getattr(exc, 'strerror', None) or exc) or type(exc).__name__
 
 
 REFERENCE_SUFFIX = 'arm_controller/reference'
@@ -820,7 +842,7 @@ def read_bag(path: str | Path, lean: bool = False) -> BagData:
     """
     files, meta, warnings = mcap_files(path)
     bag = BagData(str(path), warnings=warnings)
-    state = recording_state(path) if Path(path).is_dir() else None
+    state = _recording_state(Path(path), files)
     per_topic: dict[str, list] = {}
     for f in files:
         scan, found = _open_scan(f, path, state, bag, lean)
@@ -854,6 +876,28 @@ def read_bag(path: str | Path, lean: bool = False) -> BagData:
     return bag
 
 
+def _recording_state(path: Path, files: list[Path]) -> str | None:
+    """The recording marker that applies to ``path``: a bag directory's own, or, for an
+    ``.mcap`` file, that of the bag directory whose ``metadata.yaml`` lists it (so a killed
+    recording is recovered whether its directory or its file is named)."""
+    if path.is_dir():
+        return recording_state(path)
+    bag_dir = path.parent
+    try:
+        import yaml
+
+        text = read_metadata_text(bag_dir / 'metadata.yaml')
+        doc = yaml.load(text or '', Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader))
+        listed = doc['rosbag2_bagfile_information'].get('relative_file_paths') or []
+    except (BagError, OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError,
+            AttributeError):
+        return None
+    names = {(bag_dir / f).resolve() for f in listed if isinstance(f, str)}
+    if all(f.resolve() in names for f in files):
+        return recording_state(bag_dir)
+    return None
+
+
 def _lost(meta: dict | None) -> dict[str, int]:
     """Per-topic loss counts the recorder wrote to ``metadata.yaml`` (custom_data)."""
     custom = (meta or {}).get('custom_data')
@@ -868,15 +912,17 @@ def _lost(meta: dict | None) -> dict[str, int]:
 
 
 def _read(f: Path) -> bytes | mmap.mmap:
-    """The file's bytes: memory-mapped from :data:`MMAP_MIN_BYTES` on, else read."""
+    """The file's bytes: memory-mapped from :data:`MMAP_MIN_BYTES` on, else read (only a
+    regular file: :func:`arm_bag.bagfile.open_regular`)."""
+    fd = open_regular(f)
     try:
-        with open(f, 'rb') as fh:
+        with os.fdopen(fd, 'rb') as fh:
             size = os.fstat(fh.fileno()).st_size
             if size >= max(MMAP_MIN_BYTES, 1):
                 return mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-            return fh.read()
-    except OSError as exc:
-        raise BagError(f'{f}: cannot read: {exc.strerror or exc}') from None
+            return fh.read(size)
+    except (OSError, ValueError) as exc:
+        raise BagError(f'{f}: cannot read: {_why(exc)}') from None
 
 
 def _open_scan(f: Path, path: str | Path, state: str | None, bag: BagData,

@@ -23,6 +23,13 @@ chunk and data CRCs on). What it does about loss, in the order a message meets i
   restarted publisher starts again at 1 and is not a loss). DDS "message lost" events
   count the rest. Losses are reported per topic on /diagnostics (``recorder: lost``), in
   ``metadata.yaml`` (``custom_data: arm_sim.lost``) and by ``arm-sim analyze``.
+* **A publisher that appears while recording** (a late topic, or a node started later)
+  sends its first messages before the recorder's subscription is matched to it; they
+  never arrive, and no subscription is made fast enough to prevent it. They are counted
+  lost from the number of the first message received (:func:`arm_bag.loss.
+  missed_before_first`), so recorded + counted lost = published, for a publisher first
+  seen :data:`DISCOVERY_SETTLE` s after the recorder started (it then cannot have been
+  there before the recording) while it is its topic's only publisher.
 
 Log time = the recorder's clock at receive (wall-clock system time by default; simulated
 time, the latest ``clock`` received, with ``use_sim_time: true``, as ``ros2 bag record
@@ -37,7 +44,7 @@ is marked open and locked while recording, so arm_sim completes it the next time
 it (or ``arm-sim bag recover DIR``). SIGINT/SIGTERM take what is still queued and close
 the bag (exit 0). A full disk spends the bag's reserve on a complete bag, stops recording
 with one error line, reports it on /diagnostics and exits 1. An existing ``output``
-directory is refused (exit 2).
+directory is refused (exit 2), and so is a start without ``output`` (it is required).
 """
 
 from __future__ import annotations
@@ -45,6 +52,7 @@ from __future__ import annotations
 import functools
 import importlib
 import json
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -62,7 +70,7 @@ from rclpy.qos import (
 )
 from rclpy.subscription import Subscription
 
-from arm_bag.loss import GapCounter
+from arm_bag.loss import GapCounter, missed_before_first
 from arm_bag.msgdefs import MessageDefinitionError, QosProfile, qos_yaml, schema_text, type_hash
 from arm_bag.writer import BagWriteError, BagWriter
 from arm_common.node import (
@@ -81,10 +89,12 @@ InvalidHandle = _rclpy.InvalidHandle
 
 SUMMARY = '''
 Records topics into a rosbag2 bag directory (metadata.yaml + <name>_0.mcap, MCAP profile
-ros2, CDR messages, ros2msg schemas, chunk CRCs) without deserialising them. The suite's
-topics are subscribed at start with their publishers' QoS; others when a publisher appears
-(graph events). Log time = receive time on the recorder's clock: wall-clock system time,
-or simulated time (the latest clock message) with use_sim_time:=true. Messages lost before
+ros2, CDR messages, ros2msg schemas, chunk CRCs) without deserialising them; output is
+required. The suite's topics are subscribed at start with their publishers' QoS; others
+when a publisher appears (graph events); what a publisher appearing after the first 5 s
+sent before the recorder got its first message is counted lost. Log time = receive time
+on the recorder's clock: wall-clock system time, or simulated time (the latest clock
+message) with use_sim_time:=true. Messages lost before
 the recorder (publisher sequence gaps, DDS loss events) are counted per topic on
 /diagnostics ("recorder: lost"), in metadata.yaml (custom_data arm_sim.lost) and by
 arm-sim analyze. SIGINT/SIGTERM close the bag (exit 0); a SIGKILL loses at most the last
@@ -109,6 +119,14 @@ KNOWN_TOPICS = {
 LATCHED = frozenset({'planner/path', 'arm_controller/trajectory_status', 'robot_description'})
 DEFAULT_TOPICS = list(KNOWN_TOPICS)
 DISCOVERY_PERIOD = 0.1  # s, wall clock: the fallback poll (rosbag2's default)
+#: s, wall clock from the recorder's start: by then it has seen every publisher that
+#: existed when it started, so one it first sees later appeared while it recorded and its
+#: messages before the first one received are counted lost (:func:`arm_bag.loss.
+#: missed_before_first`). A participant that was there before the recorder is seen when
+#: it next announces itself, which Fast DDS does every 3 s (its default announcement
+#: period; measured here: up to 3.1 s), while a new one announces itself at once.
+DISCOVERY_SETTLE = 5.0
+SETTLED = 'discovery settled'  # logged once DISCOVERY_SETTLE has passed
 DRAIN_MAX = 5000  # messages taken in one callback before other callbacks get a turn
 LINGER = 1.0  # s (wall) the node stays up after a write failure, to report it
 FIRST_MESSAGE = 'first message on'  # logged once per topic (arm-sim bringup waits on it)
@@ -198,18 +216,29 @@ class RecorderNode(Node):
     """See the module docstring."""
 
     def __init__(self) -> None:
+        self.started = time.monotonic()
         super().__init__('recorder', cli_args=clock_in_namespace())
         p = declare_parameters(self, ROBOT_PARAMS + RECORDER_PARAMS, joints=joint_count)
+        if not str(p['output']).strip():
+            raise ConfigError('output is required: the bag directory to create (-p '
+                              'output:=DIR; it must not exist)')
         out = Path(p['output']).expanduser()
-        if out.exists():
+        if os.path.lexists(out):
             raise ConfigError(f'output {str(out)!r} already exists; refusing to overwrite it')
         try:
             self.writer = BagWriter(out, chunk_size=p['chunk_size'])
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f'output {str(out)!r}: {exc}') from None
+        try:
             self.writer.add_metadata('arm_sim_robot', {s.name: json.dumps(list(p[s.name])
                                      if isinstance(p[s.name], (list, tuple)) else p[s.name])
                                      for s in ROBOT_PARAMS})
             self.writer.write_metadata_yaml()
         except (OSError, ValueError) as exc:
+            try:  # a complete (empty) bag, its reserve freed: nothing half-made is left
+                self.writer.close()
+            except OSError:
+                pass
             raise ConfigError(f'output {str(out)!r}: {exc}') from None
         self.sim_clock = bool(self.get_parameter('use_sim_time').value)
         self.depth = int(p['queue_depth'])
@@ -220,6 +249,8 @@ class RecorderNode(Node):
         self.resolved = {self.resolve_topic_name(t) for t in self.wanted if t != '*'}
         self.topics: dict[str, _Topic] = {}
         self.skipped: set[str] = set()
+        self.first_seen: dict[bytes, float] = {}  # publisher GID -> when seen (monotonic)
+        self.settled = False
         self.received = 0
         self.failed: str | None = None
         self.stopped = False
@@ -239,12 +270,15 @@ class RecorderNode(Node):
         """Look at the graph: subscribe new topics, adapt QoS, report wrong types."""
         if self.stopped:
             return
+        now = time.monotonic()
         for name, _types in self.get_topic_names_and_types():
             if name in self.skipped or (not self.all_topics and name not in self.resolved):
                 continue
             infos = self.get_publishers_info_by_topic(name)
             if not infos:
                 continue
+            for i in infos:
+                self.first_seen.setdefault(bytes(i.endpoint_gid), now)
             rec = self.topics.get(name)
             type_name = rec.type_name if rec else self._choose_type(name, infos)
             if type_name is None:
@@ -256,6 +290,24 @@ class RecorderNode(Node):
                 if rec is None:
                     continue
             self._check_publishers(rec, infos, right)
+        if not self.settled and now - self.started >= DISCOVERY_SETTLE:
+            self.settled = True
+            self.get_logger().info(
+                f'{SETTLED}: a publisher that appears from now on is counted from its '
+                'first message (what it sent before the recorder got it is lost)')
+
+    def _missed_before_first(self, rec: _Topic, seq: int) -> int:
+        """How many messages the one publisher of ``rec`` sent before the first one the
+        recorder received (``seq``), if it appeared while the recorder recorded."""
+        if seq <= 1:
+            return 0
+        right = [i for i in self.get_publishers_info_by_topic(rec.name)
+                 if i.topic_type == rec.type_name]
+        if len(right) != 1:
+            return 0
+        seen = self.first_seen.setdefault(bytes(right[0].endpoint_gid), time.monotonic())
+        return missed_before_first(seq, len(right),
+                                   seen - self.started >= DISCOVERY_SETTLE)
 
     def _choose_type(self, name: str, infos) -> str | None:
         types = sorted({i.topic_type for i in infos},
@@ -363,6 +415,10 @@ class RecorderNode(Node):
         self.received += 1
         rec.received += 1
         seq = int(info.get('publication_sequence_number') or 0)
+        if rec.received == 1:  # its first message: what its publisher sent before it?
+            missed = self._missed_before_first(rec, seq)
+            if missed:
+                self._count_lost(rec, gap=missed)
         if seq and seq != (rec.gaps.last or -1) + 1:
             # Not the next number: first tell the counter how many publishers DDS has
             # matched right now (a publisher is matched before any of its data arrives).

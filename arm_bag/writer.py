@@ -25,7 +25,9 @@ Durability:
   the reserve is freed and the write retried; from then on no message is accepted
   (:class:`BagWriteError`) and :meth:`BagWriter.close` writes the summary and footer into
   the freed space, so the bag is complete. Any other write error leaves the file cut back to
-  its last complete record (still marked open, so it is recovered the next time).
+  its last complete record (still marked open, so it is recovered the next time). The
+  reserve is removed when the bag is closed, and, if the writer died, by the recovery:
+  nothing but the bag is left in its directory.
 
 Messages can be counted as lost (:meth:`BagWriter.count_lost`); the counts per topic are
 written to ``metadata.yaml`` (``custom_data``: ``arm_sim.lost`` as JSON) so every reader
@@ -47,9 +49,11 @@ from mcap.writer import CompressionType, Writer
 
 from arm_bag.bagfile import (
     LOST_KEY,
+    METADATA_TMP,
     RECORDING_CLOSED,
     RECORDING_KEY,
     RECORDING_OPEN,
+    RESERVE_NAME,
     bag_metadata,
 )
 
@@ -57,7 +61,6 @@ LIBRARY = 'arm_sim arm_bag (mcap python)'
 COMPRESSIONS = ('none', 'zstd', 'lz4')
 _COMPRESSION = {'none': CompressionType.NONE, 'zstd': CompressionType.ZSTD,
                 'lz4': CompressionType.LZ4}
-RESERVE_NAME = '.arm_sim_reserve'
 RESERVE_EXTRA = 32 * 1024  # bytes on top of two chunks: summary, footer, metadata
 
 
@@ -361,7 +364,7 @@ class BagWriter:
 def write_metadata_yaml(directory: Path, metadata: dict) -> None:
     """Atomically (re)write ``directory/metadata.yaml``; errors raise BagWriteError."""
     text = yaml.safe_dump({'rosbag2_bagfile_information': metadata}, sort_keys=False)
-    tmp = directory / '.metadata.yaml.tmp'
+    tmp = directory / METADATA_TMP
     try:
         tmp.write_text(text)
         os.replace(tmp, directory / 'metadata.yaml')

@@ -7,12 +7,15 @@ whole bag, and the two libraries reading + deserialising the first ``--compare``
 (extrapolated as a rate: they are 10-50x slower). Rates are JointState messages per second.
 
 Peak memory: each measurement of ours runs ``analyze`` once more in a fresh subprocess
-(``python -c``), which reports its own peak resident set (``VmHWM``; ``ru_maxrss`` counts
-the parent's memory at the fork too) and that of a bare interpreter with the same imports,
+(``python -c``), and ``arm_bag.recover.recover_bag`` on the same bag (read, checked and
+written anew into another directory: the whole work of ``arm-sim bag recover``) in
+another, each reporting its own peak resident set (``VmHWM``; ``ru_maxrss`` counts the
+parent's memory at the fork too), and that of a bare interpreter with the same imports,
 so the table shows the
 peak and the peak over the imports, both also as a fraction of the bag's size on disk.
 ``--memory-messages N`` (default 5e6, 0 = skip) adds an uncompressed N-message bag
-measured for memory alone (the issue-14 target: peak <= 0.5 x the bag size).
+measured for memory alone (the issue-14 target for analyze, and the "Reliability" one for
+recovery: peak <= 0.5 x the bag size). ``--no-recover`` skips the recovery rows.
 Run: ``python bench/bench_bag.py``.
 """
 
@@ -68,8 +71,9 @@ def time_ours(path: Path) -> tuple[float, int]:
 
 
 _PEAK = """
-import resource, sys
+import resource, sys, time
 from arm_bag.analysis import analyze
+from arm_bag.recover import recover_bag
 
 def peak():
     try:  # this process's own high-water mark
@@ -78,15 +82,19 @@ def peak():
     except (OSError, StopIteration):
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
-if sys.argv[2] == 'run':
+start = time.perf_counter()
+if sys.argv[2] == 'analyze':
     analyze(sys.argv[1])
-print(peak())
+elif sys.argv[2] == 'recover':
+    recover_bag(sys.argv[1], sys.argv[3])
+print(peak(), time.perf_counter() - start)
 """
 
 
-def peak_rss(path: Path) -> tuple[int, int]:
-    """(peak RSS [bytes] of a fresh ``python`` that imported arm_bag and ran ``analyze`` on
-    ``path``, peak RSS of one that only imported it).
+def peak_rss(path: Path, what: str = 'analyze') -> tuple[int, int, float]:
+    """(peak RSS [bytes] of a fresh ``python`` that imported arm_bag and ran ``what`` on
+    ``path``: ``analyze``, or ``recover`` (``recover_bag`` into a new directory, removed
+    after), peak RSS of one that only imported it, the run's time [s]).
 
     The peak is the child's ``VmHWM`` (/proc/self/status): on Linux the child's
     ``ru_maxrss`` also counts the parent's resident set at the fork (the old memory map's
@@ -95,12 +103,17 @@ def peak_rss(path: Path) -> tuple[int, int]:
     root = str(Path(__file__).resolve().parents[1])
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [root, *filter(None, [os.environ.get('PYTHONPATH')])]))
-    out = {}
-    for mode in ('run', 'import'):
-        res = subprocess.run([sys.executable, '-c', _PEAK, str(path), mode], env=env,
-                             capture_output=True, text=True, check=True)
-        out[mode] = int(res.stdout.split()[0])
-    return out['run'], out['import']
+    out: dict[str, tuple[int, float]] = {}
+    target = path.with_name(path.name + '-recovered')
+    try:
+        for mode in (what, 'import'):
+            res = subprocess.run([sys.executable, '-c', _PEAK, str(path), mode, str(target)],
+                                 env=env, capture_output=True, text=True, check=True)
+            peak, seconds = res.stdout.split()
+            out[mode] = int(peak), float(seconds)
+    finally:
+        shutil.rmtree(target, ignore_errors=True)
+    return out[what][0], out['import'][0], out[what][1]
 
 
 def bag_bytes(path: Path) -> int:
@@ -144,7 +157,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--memory-messages', type=int, default=5_000_000,
                     help='size of the extra uncompressed bag measured for peak memory only '
                          '(default 5e6; 0 = skip)')
+    ap.add_argument('--no-recover', action='store_true',
+                    help='do not measure recover_bag beside analyze')
     args = ap.parse_args(argv)
+    whats = ('analyze',) if args.no_recover else ('analyze', 'recover')
     tmp = Path(tempfile.mkdtemp(prefix='bench_bag-'))
     rows = []
     mem_rows = []
@@ -160,7 +176,9 @@ def main(argv: list[str] | None = None) -> int:
             rb = time_rosbags(path, args.compare)
             mr = time_mcap_ros2(path, args.compare)
             rows.append((compression, size / 1e6, best, ours, rb, mr))
-            mem_rows.append((compression, args.messages, size, *peak_rss(path)))
+            for what in whats:
+                mem_rows.append((what, compression, args.messages, size,
+                                 *peak_rss(path, what)))
         if args.memory_messages:
             path = tmp / 'bag_memory'
             shutil.rmtree(tmp / 'bag_none', ignore_errors=True)
@@ -169,7 +187,9 @@ def main(argv: list[str] | None = None) -> int:
             size = bag_bytes(path)
             print(f'[bench] wrote {args.memory_messages} messages (none, {size / 1e6:.0f} MB) '
                   f'in {wt:.1f} s', file=sys.stderr)
-            mem_rows.append(('none', args.memory_messages, size, *peak_rss(path)))
+            for what in whats:
+                mem_rows.append((what, 'none', args.memory_messages, size,
+                                 *peak_rss(path, what)))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     print(f'{"chunks":<7} {"MB":>5} {"ours s":>7} {"ours JS/s":>11} {"rosbags JS/s":>14} '
@@ -181,13 +201,15 @@ def main(argv: list[str] | None = None) -> int:
           f'{args.messages} JointState messages (JS); others read+deserialise the first '
           f'{args.compare}. Target: ours >= 2 M JS/s.')
     print()
-    print(f'{"chunks":<7} {"messages":>9} {"bag MB":>7} {"peak MB":>8} {"x bag":>6} '
-          f'{"imports MB":>11} {"peak-imports MB":>16} {"x bag":>6}')
-    for comp, n, size, peak, base in mem_rows:
-        print(f'{comp:<7} {n:9d} {size / 1e6:7.0f} {peak / 1e6:8.0f} {peak / size:6.2f} '
-              f'{base / 1e6:11.0f} {(peak - base) / 1e6:16.0f} {(peak - base) / size:6.2f}')
-    print('peak = VmHWM of a fresh process running analyze (imports included); imports = '
-          'the same process without analyze. Target: peak <= 0.5 x bag (5 M, none).')
+    print(f'{"run":<8} {"chunks":<7} {"messages":>9} {"bag MB":>7} {"s":>6} {"peak MB":>8} '
+          f'{"x bag":>6} {"imports MB":>11} {"peak-imports MB":>16} {"x bag":>6}')
+    for what, comp, n, size, peak, base, seconds in mem_rows:
+        print(f'{what:<8} {comp:<7} {n:9d} {size / 1e6:7.0f} {seconds:6.1f} {peak / 1e6:8.0f} '
+              f'{peak / size:6.2f} {base / 1e6:11.0f} {(peak - base) / 1e6:16.0f} '
+              f'{(peak - base) / size:6.2f}')
+    print('peak = VmHWM of a fresh process running analyze, or recover_bag into a new '
+          'directory (imports included); imports = the same process doing neither. '
+          'Target: peak <= 0.5 x bag (5 M, none), for both.')
     return 0
 
 

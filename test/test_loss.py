@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from arm_bag.loss import GapCounter
+from arm_bag.loss import GapCounter, missed_before_first
 
 
 def feed(counter: GapCounter, seqs) -> int:
@@ -49,3 +49,15 @@ def test_no_publisher_known_or_unknown_numbers_count_nothing():
     assert feed(c, [1, 5, 9]) == 0 and c.close() == 0, 'no publisher in the graph yet'
     c.graph(1)
     assert feed(c, [0, 0, 0]) == 0, 'an rmw without sequence numbers'
+
+
+def test_a_publisher_that_appeared_while_recording_counts_what_came_before_its_first():
+    assert missed_before_first(41, 1, True) == 40, 'numbers 1..40 never arrived'
+    assert missed_before_first(1, 1, True) == 0, 'nothing missed'
+    assert missed_before_first(0, 1, True) == 0, 'an rmw without sequence numbers'
+
+
+def test_what_a_publisher_sent_before_the_recorder_or_whose_it_was_is_unknown_not_lost():
+    assert missed_before_first(41, 1, False) == 0, 'it may have sent them before the start'
+    assert missed_before_first(41, 2, True) == 0, 'whose number is it?'
+    assert missed_before_first(41, 0, True) == 0, 'already gone from the graph'
