@@ -61,13 +61,19 @@ The modules, each importing only those before it:
 * :mod:`~arm_sim.sweep.spec`: the scenario settings (:data:`SETTINGS`, ParamSpecs checked
   as the nodes check their parameters), :class:`Scenario` (its plant and model),
   :class:`Spec` and :class:`PlotSpec`, parsing and loading a spec file
-  (:class:`SpecError`), the shipped specs.
+  (:class:`SpecError`), the shipped specs; the limits that bound a sweep's work
+  (:data:`MAX_SCENARIOS`, :data:`MAX_AXIS_VALUES`, :data:`MAX_SAMPLES`, :data:`MAX_STEPS`,
+  :data:`MAX_SPEC_BYTES`; YAML anchors and aliases refused), checked before anything is
+  built.
 * :mod:`~arm_sim.sweep.plan`: a scenario's plan (:class:`Planned`, :func:`plan_scenario`).
 * :mod:`~arm_sim.sweep.metrics`: a scenario's row and the metrics of its :class:`Run`
   (:func:`segment_metrics`).
 * :mod:`~arm_sim.sweep.run`: the batch closed loop, :func:`run_chunk`,
-  :func:`run_single`, chunking, :class:`Progress`, :func:`run_sweep` (processes, Dask).
-* :mod:`~arm_sim.sweep.output`: CSV, JSON, the summary and the plot.
+  :func:`run_single`, chunking, :class:`Progress`, :func:`run_sweep` (processes, at most
+  :func:`max_workers`, or Dask; Ctrl-C stops it with the finished rows:
+  :class:`SweepStopped`).
+* :mod:`~arm_sim.sweep.output`: CSV, JSON, the summary and the plot; :class:`OutputFile`
+  (checked before the run, written whole or not at all).
 * :mod:`~arm_sim.sweep.cli`: the ``arm-sim sweep`` parser, help and command.
 
 This package re-exports their public names: ``from arm_sim.sweep import X`` works for each.
@@ -76,6 +82,7 @@ This package re-exports their public names: ``from arm_sim.sweep import X`` work
 from arm_sim.sweep.cli import (
     EPILOG,
     EXIT_ERROR,
+    EXIT_INTERRUPTED,
     EXIT_OK,
     EXIT_USAGE,
     add_sweep_parser,
@@ -84,7 +91,10 @@ from arm_sim.sweep.cli import (
 from arm_sim.sweep.columns import COLUMNS, METRIC_COLUMNS, PER_JOINT, STATUSES
 from arm_sim.sweep.metrics import Run, segment_metrics
 from arm_sim.sweep.output import (
+    OutputError,
+    OutputFile,
     default_plot,
+    plot_format,
     plot_sweep,
     summary,
     sweep_figure,
@@ -93,17 +103,28 @@ from arm_sim.sweep.output import (
 )
 from arm_sim.sweep.plan import FASTEST_REQUEST, IGNORE_LIMITS, Planned, plan_scenario
 from arm_sim.sweep.run import (
+    MAX_BATCH_SAMPLES,
     VELOCITY_LIMIT,
     Progress,
+    SweepStopped,
     default_chunk_size,
     make_chunks,
+    max_workers,
     run_chunk,
     run_single,
     run_sweep,
 )
 from arm_sim.sweep.spec import (
     ELBOWS,
+    MAX_AXIS_VALUES,
+    MAX_CURVES,
+    MAX_GAIN,
+    MAX_PLOT_PANELS,
+    MAX_SAMPLES,
     MAX_SCENARIOS,
+    MAX_SPEC_BYTES,
+    MAX_SPEC_DEPTH,
+    MAX_STEPS,
     PF,
     PROFILES,
     PS,
@@ -118,16 +139,20 @@ from arm_sim.sweep.spec import (
     check_setting,
     load_spec,
     parse_spec,
+    plot_problem,
     resolve_spec,
     shipped_specs,
 )
 
-__all__ = ['COLUMNS', 'ELBOWS', 'EPILOG', 'EXIT_ERROR', 'EXIT_OK', 'EXIT_USAGE',
-           'FASTEST_REQUEST', 'IGNORE_LIMITS', 'MAX_SCENARIOS', 'METRIC_COLUMNS', 'PER_JOINT',
-           'PF', 'PROFILES', 'PS', 'ROBOT', 'SETTINGS', 'STATUSES', 'TASKS', 'VARIANT',
-           'VELOCITY_LIMIT', 'Planned', 'PlotSpec', 'Progress', 'Run', 'Scenario', 'Spec',
-           'SpecError', 'add_sweep_parser', 'check_setting', 'default_chunk_size',
-           'default_plot', 'load_spec', 'make_chunks', 'parse_spec', 'plan_scenario',
-           'plot_sweep', 'resolve_spec', 'run_chunk', 'run_single', 'run_sweep',
-           'run_sweep_command', 'segment_metrics', 'shipped_specs', 'summary',
-           'sweep_figure', 'to_json', 'write_csv']
+__all__ = ['COLUMNS', 'ELBOWS', 'EPILOG', 'EXIT_ERROR', 'EXIT_INTERRUPTED', 'EXIT_OK',
+           'EXIT_USAGE', 'FASTEST_REQUEST', 'IGNORE_LIMITS', 'MAX_AXIS_VALUES',
+           'MAX_BATCH_SAMPLES', 'MAX_CURVES', 'MAX_GAIN', 'MAX_PLOT_PANELS', 'MAX_SAMPLES',
+           'MAX_SCENARIOS', 'MAX_SPEC_BYTES', 'MAX_SPEC_DEPTH', 'MAX_STEPS', 'METRIC_COLUMNS',
+           'PER_JOINT', 'PF', 'PROFILES', 'PS', 'ROBOT', 'SETTINGS', 'STATUSES', 'TASKS',
+           'VARIANT', 'VELOCITY_LIMIT', 'OutputError', 'OutputFile', 'Planned', 'PlotSpec',
+           'Progress', 'Run', 'Scenario', 'Spec', 'SpecError', 'SweepStopped',
+           'add_sweep_parser', 'check_setting', 'default_chunk_size', 'default_plot',
+           'load_spec', 'make_chunks', 'max_workers', 'parse_spec', 'plan_scenario',
+           'plot_format', 'plot_problem', 'plot_sweep', 'resolve_spec', 'run_chunk',
+           'run_single', 'run_sweep', 'run_sweep_command', 'segment_metrics',
+           'shipped_specs', 'summary', 'sweep_figure', 'to_json', 'write_csv']

@@ -7,14 +7,28 @@ state (:func:`~arm_control.laws.law_torque`, the controller's saturation) and th
 divergence). :func:`run_single` runs one scenario the nodes' way instead;
 :func:`run_sweep` runs the chunks in this process, in worker processes or on a Dask
 cluster (the functions they run are referenced by module path, so they pickle).
+
+Bounded and interruptible: at most :func:`max_workers` processes; a batch holds at most
+:data:`MAX_BATCH_SAMPLES` control samples (a chunk of long scenarios runs as several
+batches); a plan the planner stretched past the scenario limits
+(:meth:`Scenario.too_long <arm_sim.sweep.spec.Scenario.too_long>`) is a ``refused`` row.
+A KeyboardInterrupt (Ctrl-C; ``arm-sim`` raises it on SIGTERM too) or a failed chunk stops
+:func:`run_sweep` at once: no further chunk starts, the workers are terminated, and
+:class:`SweepStopped` carries the rows finished so far. Each worker ignores SIGINT (the
+main process decides) and dies with the main process, SIGKILL included
+(``prctl(PR_SET_PDEATHSIG)``, :func:`arm_common.process.watch_parent`).
 """
 
 from __future__ import annotations
 
+import functools
 import math
+import os
+import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -29,12 +43,54 @@ from arm_sim.sweep.plan import Planned, plan_scenario
 from arm_sim.sweep.spec import Scenario, SpecError
 
 VELOCITY_LIMIT = 1000.0   # rad/s: faster is divergence (the simulator's velocity_limit)
+#: Control samples x scenarios stepped as one batch (its arrays: about 100 bytes each, so
+#: some 200 MB per worker); a chunk over it runs as several batches (the same rows).
+MAX_BATCH_SAMPLES = 2_000_000
+
+
+def max_workers() -> int:
+    """The most local worker processes a sweep starts: 4 per CPU (``os.cpu_count()``)."""
+    return 4 * (os.cpu_count() or 1)
+
+
+class SweepStopped(Exception):
+    """A sweep stopped before its end: interrupted (``reason`` None) or a chunk failed
+    (``reason`` says how); ``rows`` are the finished ones, in index order, of ``total``."""
+
+    def __init__(self, rows: list[dict], total: int, reason: str | None = None) -> None:
+        super().__init__(reason or 'interrupted')
+        self.rows, self.total, self.reason = rows, total, reason
 
 
 def _ticks(s: Scenario, planned: Planned) -> int:
     """Control periods simulated: the motion plus ``hold``, rounded up."""
-    period = round(1e9 / s.control_rate) * 1e-9
-    return max(1, math.ceil((planned.duration + s.hold) / period - 1e-9))
+    return s.ticks(planned.duration)
+
+
+def _within_limits(s: Scenario, planned: Planned) -> Planned:
+    """``planned``, or refused if the planned motion (stretched by the planner) makes more
+    work than a scenario may (:meth:`Scenario.too_long`)."""
+    if planned.trajectory is None:
+        return planned
+    reason = s.too_long(planned.duration)
+    return planned if reason is None else replace(planned, trajectory=None,
+                                                  refused=f'planned {reason}')
+
+
+def _batches(ticks: Sequence[int]) -> list[list[int]]:
+    """Consecutive positions of ``ticks`` cut so that each batch's (most ticks + 1) x
+    (scenarios) stays within :data:`MAX_BATCH_SAMPLES` (one batch when it fits)."""
+    out: list[list[int]] = []
+    longest = 0
+    for k, n in enumerate(ticks):
+        longest_here = max(longest, n + 1)
+        if out and longest_here * (len(out[-1]) + 1) <= MAX_BATCH_SAMPLES:
+            out[-1].append(k)
+            longest = longest_here
+        else:
+            out.append([k])
+            longest = n + 1
+    return out
 
 
 def run_chunk(items: Sequence[tuple[int, Scenario]], keep_runs: bool = False
@@ -59,14 +115,14 @@ def run_chunk(items: Sequence[tuple[int, Scenario]], keep_runs: bool = False
     if any(s.law != law or s.timing() != (step_ns, substeps) for _, s in items):
         raise ValueError('run_chunk: the scenarios of one chunk must share law, '
                          'control_rate and physics_step')
-    planned = [plan_scenario(s) for _, s in items]
+    planned = [_within_limits(s, plan_scenario(s)) for _, s in items]
     rows = [new_row(i, s, p) for (i, s), p in zip(items, planned)]
     runs: list[Run | None] = [None] * len(items)
     live = [k for k, p in enumerate(planned) if p.trajectory is not None]
-    if live:
-        for k, run in zip(live, _run_batch([items[k][1] for k in live],
-                                           [planned[k] for k in live],
-                                           law, step_ns, substeps)):
+    for batch in _batches([_ticks(items[k][1], planned[k]) for k in live]):
+        ks = [live[b] for b in batch]
+        for k, run in zip(ks, _run_batch([items[k][1] for k in ks], [planned[k] for k in ks],
+                                         law, step_ns, substeps)):
             runs[k] = run
             finish_row(rows[k], items[k][1], planned[k], run)
     return (rows, runs) if keep_runs else rows
@@ -142,7 +198,7 @@ def run_single(index: int, s: Scenario, keep_run: bool = False
     handling: for comparisons and benchmarks."""
     from arm_control.laws import ControlLaw
 
-    planned = plan_scenario(s)
+    planned = _within_limits(s, plan_scenario(s))
     row = new_row(index, s, planned)
     if planned.trajectory is None:
         return (row, None) if keep_run else row
@@ -225,13 +281,20 @@ def run_sweep(scenarios: Sequence[Scenario], *, workers: int = 2,
     Parameters
     ----------
     scenarios : the sweep's scenarios.
-    workers : local processes (1: in this process). Ignored with ``dask``.
+    workers : local processes (1: in this process), at most :func:`max_workers`. Ignored
+        with ``dask``.
     chunk_size : scenarios per batch (default :func:`default_chunk_size`).
     dask : a Dask scheduler address (``tcp://host:8786``): run the chunks there.
     progress : called with the number of scenarios each finished chunk held.
+
+    Raises
+    ------
+    SweepStopped : on KeyboardInterrupt or a failed chunk, with the rows finished so far
+        (no worker process is left running).
     """
-    if workers < 1:
-        raise ValueError(f'workers must be >= 1, got {workers}')
+    if not 1 <= workers <= max_workers():
+        raise ValueError(f'workers must be in [1, {max_workers()}] (4 per CPU), got '
+                         f'{workers}')
     size = chunk_size or default_chunk_size(len(scenarios), workers)
     chunks = make_chunks(scenarios, size)
     rows: list[dict | None] = [None] * len(scenarios)
@@ -242,20 +305,97 @@ def run_sweep(scenarios: Sequence[Scenario], *, workers: int = 2,
         if progress:
             progress(len(chunk_rows))
 
-    if dask:
-        _run_dask(dask, chunks, take)
-    elif workers == 1 or len(chunks) <= 1:
-        for c in chunks:
-            take(_rows_of(c))
-    else:
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        with ProcessPoolExecutor(max_workers=min(workers, len(chunks))) as pool:
-            futures = [pool.submit(_rows_of, c) for c in chunks]
-            for f in as_completed(futures):
-                take(f.result())
+    try:
+        if dask:
+            _run_dask(dask, chunks, take)
+        elif workers == 1 or len(chunks) <= 1:
+            for c in chunks:
+                take(_checked(c, functools.partial(_rows_of, c)))
+        else:
+            _run_pool(chunks, min(workers, len(chunks)), take)
+    except (KeyboardInterrupt, _ChunkFailed) as exc:
+        done = [r for r in rows if r is not None]
+        reason = str(exc) if isinstance(exc, _ChunkFailed) else None
+        raise SweepStopped(done, len(scenarios), reason) from None
     assert all(r is not None for r in rows)
     return rows  # type: ignore[return-value]
+
+
+class _ChunkFailed(Exception):
+    """A chunk raised in a worker (or the worker died): the message says which and how."""
+
+
+def _checked(chunk: list, rows: Callable[[], list[dict]]) -> list[dict]:
+    """``rows()``, the rows of ``chunk``; an exception (a bug, a dead worker) as
+    :class:`_ChunkFailed`."""
+    try:
+        return rows()
+    except Exception as exc:
+        n = len(chunk)
+        raise _ChunkFailed(f"a chunk of {n} scenario{'s' * (n != 1)} (index {chunk[0][0]}"
+                           f"{', ...' * (n != 1)}) failed: {type(exc).__name__}: {exc}") from None
+
+
+def _worker_init(parent: int) -> None:
+    """Each worker process: Ctrl-C reaches the whole process group, but the main process
+    decides (SIGINT ignored; SIGTERM, its stop, terminates); and the kernel kills the
+    worker when the main process dies, however it dies (:func:`watch_parent`)."""
+    from arm_common.process import PARENT_ENV, watch_parent
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    os.environ[PARENT_ENV] = str(parent)
+    watch_parent()
+
+
+def _run_pool(chunks: list, workers: int, take: Callable[[list[dict]], None]) -> None:
+    """Run the chunks on ``workers`` local processes; on any exception (KeyboardInterrupt
+    included) stop at once: pending chunks cancelled, the workers terminated."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    # fork (Python 3.11's default on Linux): the workers are this process's children,
+    # which watch_parent's parent-death signal relies on.
+    context = multiprocessing.get_context('fork' if sys.platform.startswith('linux')
+                                          else None)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context,
+                               initializer=_worker_init, initargs=(os.getpid(),))
+    try:
+        futures = {pool.submit(_rows_of, c): c for c in chunks}
+        for f in as_completed(futures):
+            take(_checked(futures[f], f.result))
+    except BaseException:
+        _stop_pool(pool)
+        raise
+    pool.shutdown()
+
+
+def _stop_pool(pool) -> None:
+    """Cancel the pool's pending chunks and terminate its workers now (a second Ctrl-C or
+    SIGTERM meanwhile is ignored: this takes a moment and must finish)."""
+    handlers = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            handlers[sig] = signal.signal(sig, signal.SIG_IGN)
+        except ValueError:  # not the main thread
+            pass
+    try:
+        procs = list((getattr(pool, '_processes', None) or {}).values())
+        manager = getattr(pool, '_executor_manager_thread', None)
+        pool.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            p.terminate()
+        deadline = time.monotonic() + 5.0
+        for p in procs:
+            p.join(max(0.0, deadline - time.monotonic()))
+            if p.is_alive():
+                p.kill()
+                p.join(1.0)
+        if manager is not None:  # it sees the workers gone and fails what was pending
+            manager.join(max(0.0, deadline - time.monotonic()))
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
 
 
 def _run_dask(address: str, chunks: list, take: Callable[[list[dict]], None]) -> None:
@@ -266,3 +406,6 @@ def _run_dask(address: str, chunks: list, take: Callable[[list[dict]], None]) ->
         dask_map(address, _rows_of, chunks, on_result=lambda _i, rows: take(rows))
     except ClusterError as exc:
         raise SpecError(str(exc)) from None
+    except Exception as exc:  # a chunk raised there, or the cluster went away
+        raise _ChunkFailed(f'the Dask cluster failed a chunk: {type(exc).__name__}: '
+                           f'{exc}') from None

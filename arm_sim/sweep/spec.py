@@ -24,14 +24,24 @@ from typing import Any
 import numpy as np
 
 from arm_common.params import ParamSpec
-from arm_control.laws import LAWS, Gains
+from arm_control.laws import BATCH_LAWS, Gains
 from arm_dynamics.limits import DEFAULT_EFFORT
 from arm_dynamics.two_link import TwoLinkArm
 from arm_planner.planner import FEASIBILITY, MAX_DURATION
 from arm_planner.time_scaling import KINDS
 from arm_sim.sweep.columns import COLUMNS
 
-MAX_SCENARIOS = 1_000_000
+# The limits that size a sweep's work, all checked before anything is built or run
+# (``arm-sim sweep --help`` and docs/sweeps.md state them).
+MAX_SCENARIOS = 1_000_000     # scenarios per sweep (a grid's product of axis lengths, samples)
+MAX_AXIS_VALUES = 100_000     # values of one axis (a list, a linspace/logspace count)
+MAX_SAMPLES = 1_000_000       # control samples per scenario: (duration + hold) x control_rate
+MAX_STEPS = 10_000_000        # RK4 steps per scenario: (duration + hold) / physics_step
+MAX_SPEC_BYTES = 1_000_000    # a spec file (a short text: its axes make the scenarios)
+MAX_SPEC_DEPTH = 16           # nesting of the spec's YAML collections
+MAX_GAIN = 1e6                # kp, kd, ki, i_clamp: the controller node's gains.* maximum
+MAX_PLOT_PANELS = 8           # plot: y columns (one panel each)
+MAX_CURVES = 50               # plot: curves (values of `by`)
 ROBOT = TwoLinkArm()      # the robot of config/arm.yaml (the model defaults)
 PS = tuple(float(v) for v in ROBOT.forward_kinematics([-0.4, 1.2]))  # the demo's Ps, m
 PF = (0.5, 1.2)           # the demo's Pf, m
@@ -55,9 +65,9 @@ SETTINGS: dict[str, ParamSpec] = {p.name: p for p in (
     ParamSpec('task', 'string', 'straight_line', 'regulation | straight_line',
               choices=TASKS),
     ParamSpec('start', 'doubles', PS, "start tip position [x, y] (at rest; the demo's Ps)",
-              'm', length=2),
+              'm', minimum=-10.0, maximum=10.0, length=2),
     ParamSpec('goal', 'doubles', PF, "goal tip position [x, y] (the demo's Pf)", 'm',
-              length=2),
+              minimum=-10.0, maximum=10.0, length=2),
     ParamSpec('elbow', 'string', 'down', 'elbow branch of the start: down (q2 > 0) | up',
               choices=ELBOWS),
     ParamSpec('duration', 'double', 1.0, "motion duration, or 'fastest' feasible within the "
@@ -68,15 +78,18 @@ SETTINGS: dict[str, ParamSpec] = {p.name: p for p in (
     ParamSpec('feasibility', 'string', 'stretch', 'planner vs effort limits: stretch (slow '
               'down to fit) | refuse | ignore (plan as asked; the torque saturates)',
               choices=(*FEASIBILITY, 'ignore')),
-    ParamSpec('law', 'string', 'computed_torque', ' | '.join(LAWS), choices=LAWS),
+    ParamSpec('law', 'string', 'computed_torque', ' | '.join(BATCH_LAWS),
+              choices=BATCH_LAWS),
     ParamSpec('kp', 'doubles', _GAINS.kp, 'proportional gain',
-              '1/s^2 (computed_torque), N m/rad (others)', minimum=0.0, length=2),
-    ParamSpec('kd', 'doubles', _GAINS.kd, 'derivative gain',
-              '1/s (computed_torque), N m s/rad (others)', minimum=0.0, length=2),
-    ParamSpec('ki', 'doubles', _GAINS.ki, 'integral gain (pid)', 'N m/(rad s)', minimum=0.0,
+              '1/s^2 (computed_torque), N m/rad (others)', minimum=0.0, maximum=MAX_GAIN,
               length=2),
+    ParamSpec('kd', 'doubles', _GAINS.kd, 'derivative gain',
+              '1/s (computed_torque), N m s/rad (others)', minimum=0.0, maximum=MAX_GAIN,
+              length=2),
+    ParamSpec('ki', 'doubles', _GAINS.ki, 'integral gain (pid)', 'N m/(rad s)', minimum=0.0,
+              maximum=MAX_GAIN, length=2),
     ParamSpec('i_clamp', 'doubles', _GAINS.i_clamp, 'bound of the integral term (pid)', 'N m',
-              minimum=0.0, length=2),
+              minimum=0.0, maximum=MAX_GAIN, length=2),
     ParamSpec('payload', 'double', 0.0, 'point mass at the tip of the plant, unknown to the '
               'controller and the planner', 'kg', minimum=0.0, maximum=1e4),
     ParamSpec('mass_error', 'double', 0.0, "the controller's model link masses are (1 + e) "
@@ -86,8 +99,7 @@ SETTINGS: dict[str, ParamSpec] = {p.name: p for p in (
               'of gravity distances are (1 + e) times the real ones', 'fraction',
               minimum=-1.0, maximum=100.0, strict_min=True),
     ParamSpec('control_rate', 'double', 100.0, 'control (state and command) rate; 1/rate a '
-              'whole multiple of physics_step', 'Hz', minimum=0.0, maximum=1e5,
-              strict_min=True),
+              'whole multiple of physics_step', 'Hz', minimum=0.1, maximum=1e5),
     ParamSpec('physics_step', 'double', 0.001, 'RK4 step of the plant', 's', minimum=1e-6,
               maximum=1.0),
     ParamSpec('effort_limits', 'doubles', DEFAULT_EFFORT,
@@ -110,6 +122,11 @@ def _number(param: ParamSpec, value: object) -> float:
     whole range where the setting has a maximum: the reason names the bound it broke)."""
     if isinstance(value, (np.integer, np.floating)):
         value = value.item()  # numpy numbers are numbers (ParamSpec knows int and float)
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > 2 ** 1000:
+        # beyond any range (and beyond a float: ParamSpec.check would overflow)
+        bound = f'>= {param.minimum:g}' if value < 0 else f'<= {param.maximum:g}'
+        raise ValueError(f'{param.name} must be {bound}, got an integer of '
+                         f'{value.bit_length()} bits')
     reason = param.check(value)
     if reason:
         if param.maximum is not None and param.minimum is not None:
@@ -188,6 +205,30 @@ class Scenario:
         if self.duration == 'fastest' and self.feasibility == 'ignore':
             raise ValueError("duration 'fastest' is fastest within the effort limits: "
                              "feasibility must be stretch or refuse, not 'ignore'")
+        # The requested motion; a plan the planner stretches is checked again when planned.
+        reason = self.too_long(0.0 if self.duration == 'fastest' else float(self.duration))
+        if reason:
+            raise ValueError(reason)
+
+    def ticks(self, duration: float) -> int:
+        """Control periods simulated for a motion of ``duration`` s: the motion plus
+        ``hold``, rounded up."""
+        period = round(1e9 / self.control_rate) * 1e-9
+        return max(1, math.ceil((duration + self.hold) / period - 1e-9))
+
+    def too_long(self, duration: float) -> str | None:
+        """Why a motion of ``duration`` s (plus ``hold``) is more than one scenario may run
+        (:data:`MAX_SAMPLES` control samples, :data:`MAX_STEPS` RK4 steps), or None."""
+        ticks = self.ticks(duration)
+        what = f'duration {duration:g} s + hold {self.hold:g} s'
+        if ticks > MAX_SAMPLES:
+            return (f'{what} at control_rate {self.control_rate:g} Hz is {ticks} control '
+                    f'samples, more than {MAX_SAMPLES} per scenario')
+        steps = ticks * self.timing()[1]
+        if steps > MAX_STEPS:
+            return (f'{what} at physics_step {self.physics_step:g} s is {steps} RK4 steps, '
+                    f'more than {MAX_STEPS} per scenario')
+        return None
 
     def timing(self) -> tuple[int, int]:
         """(physics step [ns], RK4 steps per control period), as the simulator's
@@ -234,6 +275,12 @@ class Spec:
     seed: int = 0
     plot: PlotSpec | None = None
 
+    def count(self) -> int:
+        """The number of scenarios (without building them)."""
+        if self.kind == 'random':
+            return self.samples
+        return math.prod(len(v) for v in self.axes.values())
+
     def scenarios(self) -> list[Scenario]:
         """Every scenario: the grid's combinations (axes in spec order, the last varying
         fastest) or ``samples`` random draws (each axis drawn independently)."""
@@ -246,11 +293,14 @@ class Spec:
             draws = [_draw(rng, self.axes[n], self.samples) for n in names]
             combos = zip(*draws) if draws else ([] for _ in range(self.samples))
         out = []
-        for combo in combos:
+        for i, combo in enumerate(combos):
             values = dict(base)
             for n, v in zip(names, combo):
                 values.update(v if n == VARIANT else {n: v})
-            out.append(Scenario(**values))
+            try:
+                out.append(Scenario(**values))
+            except ValueError as exc:
+                raise ValueError(f'scenario {i}: {exc}') from None
         return out
 
 
@@ -346,8 +396,24 @@ def _axis(kind: str, name: str, value: object) -> Any:
     return checked if kind == 'grid' else {'kind': 'choice', 'arg': checked}
 
 
+def _count(value: object) -> int | None:
+    """The number of values an axis lists (a list, or a linspace/logspace count), read off
+    the spec before anything is built; None for a random range or a malformed axis (its
+    parsing says why)."""
+    if isinstance(value, list):
+        return len(value)
+    if isinstance(value, dict) and len(value) == 1:
+        (op, arg), = value.items()
+        if (op in ('linspace', 'logspace') and isinstance(arg, list) and len(arg) == 3
+                and isinstance(arg[2], int) and not isinstance(arg[2], bool)):
+            return arg[2]
+    return None
+
+
 def parse_spec(doc: object, name: str = 'sweep') -> Spec:
-    """Validate a spec document (the YAML's content); raises :class:`SpecError`."""
+    """Validate a spec document (the YAML's content); raises :class:`SpecError`. The work
+    it asks for is bounded before anything is built: :data:`MAX_AXIS_VALUES` per axis,
+    :data:`MAX_SCENARIOS` in all; each scenario's length by :class:`Scenario`."""
     if not isinstance(doc, dict):
         raise SpecError(f'a spec is a mapping with keys {", ".join(_TOP)}, got '
                         f'{type(doc).__name__}')
@@ -376,21 +442,85 @@ def parse_spec(doc: object, name: str = 'sweep') -> Spec:
     both = sorted(set(scenario) & set(axes))
     if both:
         raise SpecError(f'{both[0]!r} is both in scenario and in axes; give it once')
+    # Size the work before building any axis.
+    counts = {k: _count(v) for k, v in axes.items()}
+    for k, n in counts.items():
+        if n is not None and n > MAX_AXIS_VALUES:
+            raise SpecError(f'axes.{k}: {n} values, more than {MAX_AXIS_VALUES} per axis')
+    if kind == 'grid':
+        total = math.prod(n for n in counts.values() if n is not None)
+        if total > MAX_SCENARIOS:
+            sizes = ' x '.join(f'{k} {n}' for k, n in counts.items() if n is not None)
+            raise SpecError(f'the grid has {total} scenarios ({sizes}), more than '
+                            f'{MAX_SCENARIOS}')
     fixed = {k: _check_setting(f'scenario.{k}', k, v) for k, v in scenario.items()}
     taken = set(scenario) | set(axes)
     parsed = {k: (_variants(kind, v, taken) if k == VARIANT else _axis(kind, k, v))
               for k, v in axes.items()}
-    if kind == 'grid':
-        total = math.prod(len(v) for v in parsed.values())
-        if total > MAX_SCENARIOS:
-            raise SpecError(f'the grid has {total} scenarios, more than {MAX_SCENARIOS}')
     spec = Spec(name=str(doc.get('name', name)), question=str(doc.get('question', '')),
-                kind=kind, scenario=fixed, axes=parsed, samples=samples, seed=seed,
-                plot=_plot_spec(doc.get('plot'), parsed))
-    return spec
+                kind=kind, scenario=fixed, axes=parsed, samples=samples, seed=seed)
+    return replace(spec, plot=_plot_spec(doc.get('plot'), spec))
 
 
-def _plot_spec(value: object, axes: dict) -> PlotSpec | None:
+#: Result columns that hold text, not numbers (``duration_requested`` holds 'fastest'
+#: where a scenario asks for it).
+TEXT_COLUMNS = ('task', 'elbow', 'time_scaling', 'regulation_profile', 'feasibility', 'law',
+                'status', 'message')
+#: The setting behind each input column (the others are the run's outcome).
+COLUMN_SETTING = {
+    **{n: n for n in SETTINGS if n in COLUMNS and n != 'duration'},  # 'duration': planned
+    'start_x': 'start', 'start_y': 'start', 'goal_x': 'goal', 'goal_y': 'goal',
+    'duration_requested': 'duration', 'effort_limit_1': 'effort_limits',
+    'effort_limit_2': 'effort_limits',
+    **{f'{g}_{j}': g for g in ('kp', 'kd', 'ki', 'i_clamp') for j in (1, 2)}}
+
+
+def setting_values(spec: Spec, name: str) -> list | None:
+    """The values setting ``name`` takes in the spec's scenarios (with repeats), or None
+    where a random axis draws it from a range."""
+    if name in spec.scenario:
+        return [spec.scenario[name]]
+    axis = spec.axes.get(name)
+    if axis is not None:
+        return axis if isinstance(axis, list) else (
+            axis['arg'] if axis['kind'] == 'choice' else None)
+    bundles = spec.axes.get(VARIANT)
+    if bundles is not None:
+        bundles = bundles if isinstance(bundles, list) else bundles['arg']
+        if any(name in b for b in bundles):
+            return [b.get(name, SETTINGS[name].default) for b in bundles]
+    return [SETTINGS[name].default]
+
+
+def plot_problem(ps: PlotSpec, spec: Spec) -> str | None:
+    """Why ``ps`` cannot be drawn from the rows of ``spec`` (checked before the run: a
+    text column across or up, too many panels or curves), or None."""
+    if len(ps.y) > MAX_PLOT_PANELS:
+        return f'y has {len(ps.y)} columns, more than {MAX_PLOT_PANELS} panels'
+    fastest = 'fastest' in (setting_values(spec, 'duration') or ())
+    for where, col in (('x', ps.x), *(('y', c) for c in ps.y)):
+        if col in TEXT_COLUMNS or (col == 'duration_requested' and fastest):
+            why = ("is 'fastest' in some scenarios (the planned duration is 'duration')"
+                   if col == 'duration_requested' else 'holds text')
+            return f'{where}: column {col!r} {why}; {where} must be a number column'
+    if ps.by is None:
+        return None
+    if ps.by == 'index':
+        n = spec.count()
+    elif ps.by in COLUMN_SETTING:
+        values = setting_values(spec, COLUMN_SETTING[ps.by])
+        if values is None:
+            return (f'by: {ps.by!r} is drawn from a range (one curve per value): draw it '
+                    'across (x), or give its axis a list of values')
+        n = len({tuple(v) if isinstance(v, list) else v for v in values})
+    else:
+        return None  # an outcome: counted when drawn
+    if n > MAX_CURVES:
+        return f'by: {ps.by!r} has {n} values, more than {MAX_CURVES} curves'
+    return None
+
+
+def _plot_spec(value: object, spec: Spec) -> PlotSpec | None:
     if value is None:
         return None
     if not isinstance(value, dict):
@@ -399,25 +529,66 @@ def _plot_spec(value: object, axes: dict) -> PlotSpec | None:
         _known('plot: ', key, ('x', 'y', 'by'))
     y = value.get('y', [])
     y = [y] if isinstance(y, str) else y
+    if not isinstance(y, list):
+        raise SpecError(f'plot: y must be a column or a list of columns, got {y!r}')
     cols = [value.get('x'), *y] + ([value['by']] if value.get('by') is not None else [])
     for c in cols:
         _known('plot: column ', c, COLUMNS)
     if not y:
         raise SpecError('plot: y must name at least one column')
-    return PlotSpec(x=str(value['x']), y=tuple(y), by=value.get('by'))
+    ps = PlotSpec(x=str(value['x']), y=tuple(y), by=value.get('by'))
+    reason = plot_problem(ps, spec)
+    if reason:
+        raise SpecError(f'plot: {reason}')
+    return ps
+
+
+def _loader() -> type:
+    """PyYAML's safe loader, refusing anchors and aliases (an alias repeats a node without
+    copying it: nine nested ones make 10^9 values out of a few lines) and collections
+    nested deeper than :data:`MAX_SPEC_DEPTH`, while composing, before anything is built."""
+    import yaml
+
+    class SpecLoader(yaml.SafeLoader):
+        depth = 0
+
+        def compose_node(self, parent, index):
+            event = self.peek_event()
+            line = event.start_mark.line + 1
+            if isinstance(event, yaml.AliasEvent) or getattr(event, 'anchor', None):
+                mark = '*' if isinstance(event, yaml.AliasEvent) else '&'
+                raise SpecError(f'line {line}: YAML anchors and aliases ({mark}{event.anchor}) '
+                                'are not accepted in a spec: write the values out')
+            if self.depth >= MAX_SPEC_DEPTH:
+                raise SpecError(f'line {line}: nested more than {MAX_SPEC_DEPTH} levels deep')
+            self.depth += 1
+            try:
+                return super().compose_node(parent, index)
+            finally:
+                self.depth -= 1
+
+    return SpecLoader
 
 
 def load_spec(path: str | Path) -> Spec:
     """Read and validate a YAML spec; raises :class:`SpecError` (also for an unreadable
-    file or bad YAML)."""
+    file, bad YAML, a file over :data:`MAX_SPEC_BYTES`, YAML anchors or aliases)."""
     import yaml
 
     try:
-        text = Path(path).read_text()
+        with open(path, 'rb') as f:
+            data = f.read(MAX_SPEC_BYTES + 1)
     except OSError as exc:
         raise SpecError(f'cannot read it: {exc.strerror or exc}') from None
+    if len(data) > MAX_SPEC_BYTES:
+        raise SpecError(f'more than {MAX_SPEC_BYTES} bytes: a spec is a short text (its '
+                        'axes make the scenarios)')
     try:
-        doc = yaml.safe_load(text)
+        text = data.decode('utf-8')
+    except UnicodeDecodeError as exc:
+        raise SpecError(f'not UTF-8 text: {exc.reason} at byte {exc.start}') from None
+    try:
+        doc = yaml.load(text, Loader=_loader())  # a yaml.SafeLoader subclass
     except yaml.YAMLError as exc:
         first = str(exc).strip().splitlines()
         raise SpecError(f"not YAML: {' '.join(s.strip() for s in first)}") from None
