@@ -35,9 +35,15 @@ class CliError(Exception):
 DOMAIN_RANGE = (0, 232)
 
 
-def _domain(args: argparse.Namespace) -> int:
+def _domain(args: argparse.Namespace, claim: bool = False) -> int:
+    """The ROS domain of the command: ``--domain-id``, else $ROS_DOMAIN_ID, else (demo,
+    bringup) a free one, claimed. With ``claim`` (a run that starts nodes: demo, bringup)
+    an explicit domain is claimed too, and refused (exit 2) if another arm_sim run holds
+    it: two suites on one domain see each other's nodes."""
     from arm_sim.demo import default_domain
+    from arm_sim.launcher import DomainInUse, claim_explicit_domain
 
+    explicit = args.domain_id is not None or bool(os.environ.get('ROS_DOMAIN_ID'))
     try:
         domain = args.domain_id if args.domain_id is not None else default_domain()
     except ValueError:
@@ -47,7 +53,23 @@ def _domain(args: argparse.Namespace) -> int:
     if not lo <= domain <= hi:
         raise CliError(f'--domain-id {domain} is out of range: ROS domain ids are {lo}..{hi} '
                        '(the DDS port of a higher one does not exist)', EXIT_USAGE)
+    if claim and explicit:
+        try:
+            claim_explicit_domain(domain)
+        except DomainInUse as exc:
+            raise CliError(str(exc), EXIT_USAGE) from None
     return domain
+
+
+def _clean_shared_memory() -> None:
+    """Remove the Fast DDS shared-memory files of processes that are gone (a suite killed
+    with SIGKILL leaves its own), before this run adds its own."""
+    from arm_sim.launcher import remove_stale_shm
+
+    removed = remove_stale_shm()
+    if removed:
+        print(f'removed {len(removed)} stale Fast DDS shared-memory file(s) of processes '
+              'that are gone')
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -57,13 +79,14 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from arm_sim.client import SuiteError
     from arm_sim.demo import Demo, summary_table, timing_line
 
-    domain = _domain(args)
+    domain = _domain(args, claim=True)
     out = Path(args.out) if args.out else Path('runs') / time.strftime('demo-%Y%m%d-%H%M%S')
     if out.exists():
         raise CliError(f'{out} exists; choose another --out')
     started = time.monotonic()
     print(f'arm-sim demo: regulation and straight-line tracking on the simulated 2-R arm '
           f'(output in {out}/)')
+    _clean_shared_memory()
     demo = Demo(out, domain, fast=args.fast, slow=args.slow, foxglove=args.foxglove,
                 timing_mode=args.timing_mode)
     try:
@@ -97,19 +120,22 @@ def cmd_bringup(args: argparse.Namespace) -> int:
     from arm_planner.planner_node import FIRST_STATE
     from arm_sim.launcher import NodeProcess, config_file
 
-    domain = _domain(args)
+    domain = _domain(args, claim=True)
     params_file = Path(args.params_file) if args.params_file else config_file()
     if not params_file.is_file():
         raise CliError(f'--params-file {params_file}: no such file')
+    _clean_shared_memory()
     out = Path(args.out) if args.out else Path('runs') / time.strftime('bringup-%Y%m%d-%H%M%S')
     (out / 'logs').mkdir(parents=True, exist_ok=True)
-    ns = args.namespace
+    ns = '/' + args.namespace.strip('/') if args.namespace.strip('/') else ''  # absolute
     loop = ['composed'] if args.composed else ['simulator', 'controller']
     # The visualizer publishes markers and robot_description (recorded too).
     nodes = loop + ['planner'] + (['recorder'] if args.record else []) + ['visualizer']
     overrides = {'simulator': {'simulator': {'timing_mode': args.timing_mode}},
                  'recorder': {'recorder': {'output': str(out / 'bag')}}}
-    overrides['composed'] = overrides['simulator']  # per node, by node name
+    # Composed: the controller answers the first state in the same process at once, so the
+    # simulation starts paused at t = 0 and runs once the others have its first state.
+    overrides['composed'] = {'simulator': {'timing_mode': args.timing_mode, 'pause_at': 0.0}}
     if args.foxglove is not None:  # the Foxglove bridge first: it sees the suite from the start
         nodes.insert(0, 'live')
         overrides['live'] = {'live': {'port': args.foxglove}}
@@ -128,12 +154,21 @@ def cmd_bringup(args: argparse.Namespace) -> int:
         # holds every state from the first on. With two processes the controller (which
         # starts the loop) comes last, once the planner has that state too: a planner that
         # joined later, while the simulation stood paused or held, would have none.
+        # Composed, the controller answers at once: that process comes first, paused at
+        # t = 0 (what it sends before the recorder starts is not the recording's), and runs
+        # once the recorder and the planner have its first state.
         if 'live' in nodes:  # the Foxglove bridge first: it sees the suite from the start
             start('live')
+        if args.composed:  # paused at t = 0 until the others have that state (below)
+            start('composed')
+            # Both nodes made: the controller's first line ('[controller]: ', or
+            # '[ns.controller]: ' in a namespace).
+            _wait_log(procs[-1], 'controller]: ')
         if args.record:
             start('recorder')
             _wait_log(procs[-1], 'recording to')
-        start(loop[0])
+        if not args.composed:
+            start('simulator')
         if args.record and loop[0] == 'simulator':
             recorder = next(p for p in procs if p.name == 'recorder')
             _wait_log(recorder, f'{FIRST_MESSAGE} {ns or ""}/joint_states'.replace('//', '/'))
@@ -144,6 +179,8 @@ def cmd_bringup(args: argparse.Namespace) -> int:
             planner = next(p for p in procs if p.name == 'planner')
             _wait_log(planner, FIRST_STATE)
             start('controller')
+        else:  # composed, paused at t = 0: run once the recorder and planner have t = 0
+            _start_composed_loop(procs, domain, ns)
         live = [p for p in procs if p.name == 'live']
         if live:
             _wait_log(live[0], 'serving ws://')
@@ -159,13 +196,9 @@ def cmd_bringup(args: argparse.Namespace) -> int:
     if args.foxglove is not None:
         print(f'  Foxglove: open connection -> {_served_url(procs)} (localhost), then import '
               'the layout config/foxglove/arm_layout.json')
-    print('  stop with Ctrl-C')
+    print('  stop with Ctrl-C', flush=True)
     try:
-        while all(p.alive() for p in procs):
-            time.sleep(0.2)  # supervising child processes: nothing to spin
-        dead = [p for p in procs if not p.alive()]
-        raise CliError(f'{dead[0].name} exited with code {dead[0].proc.returncode}; see '
-                       f'{dead[0].log_path}')
+        _supervise(procs)
     except KeyboardInterrupt:
         print('\nstopping ...')
     finally:
@@ -182,6 +215,70 @@ def cmd_bringup(args: argparse.Namespace) -> int:
     if args.record:
         print(f'bag: {out / "bag"}  (arm-sim analyze {out / "bag"})')
     return 0
+
+
+#: Nodes whose exit leaves the suite running (reported): the live view is an extra.
+OPTIONAL_NODES = ('live',)
+
+
+def _supervise(procs: list) -> None:
+    """Watch the node processes until one of the suite's exits (CliError naming it and
+    its log); an optional one (the live view) that exits is reported and the rest goes on.
+    Returns only by KeyboardInterrupt (Ctrl-C, SIGTERM)."""
+    watched = list(procs)
+    while True:
+        for p in [p for p in watched if not p.alive()]:
+            if p.name not in OPTIONAL_NODES:
+                raise CliError(f'{p.name} exited with code {p.proc.returncode}; see '
+                               f'{p.log_path}')
+            watched.remove(p)
+            print(f'arm-sim bringup: warning: {p.name} exited with code {p.proc.returncode} '
+                  f'(see {p.log_path}); the suite goes on without the live view',
+                  file=sys.stderr, flush=True)
+        time.sleep(0.2)  # supervising child processes: nothing to spin
+
+
+def _start_composed_loop(procs: list, domain: int, ns: str, timeout: float = 30.0) -> None:
+    """Let the composed simulator, paused at t = 0, run once the recorder (if any) and the
+    planner have its first state: DDS delivers a state only to subscriptions already
+    matched, and the controller in the same process answers it at once, so a simulation
+    that ran from the start would integrate ahead of a recorder still being matched (its
+    bag then began seconds in). The paused simulator publishes its first state once; it is
+    published again (the ``reset`` service: the initial state at t = 0, time unchanged)
+    until both logged it, then ``pause_at`` is cleared."""
+    from arm_bag.recorder_node import FIRST_MESSAGE
+    from arm_planner.planner_node import FIRST_STATE
+    from arm_sim.client import SuiteClient, SuiteError
+
+    wanted = {'planner': FIRST_STATE,
+              'recorder': f'{FIRST_MESSAGE} {ns or ""}/joint_states'.replace('//', '/')}
+    waiting = [(p, wanted[p.name]) for p in procs if p.name in wanted]
+
+    def alive() -> None:
+        for p in procs:
+            if not p.alive():
+                raise CliError(f'{p.name} exited with code {p.proc.returncode}; see '
+                               f'{p.log_path}')
+
+    def received() -> bool:
+        return all(text in p.output() for p, text in waiting)
+
+    client = SuiteClient(domain, ns)
+    try:
+        end = time.monotonic() + timeout
+        while not received():
+            left = end - time.monotonic()
+            if left <= 0:
+                missing = [p.name for p, text in waiting if text not in p.output()]
+                raise CliError(f"{', '.join(missing)} did not receive the simulator's first "
+                               f'state within {timeout:g} s; see {procs[0].log_path.parent}')
+            client.call_trigger('simulator', 'reset', timeout=left, alive=alive)
+            client.spin_for(0.3, received)  # the logs tell: nothing else to wait on
+        client.set_params('simulator', pause_at=-1.0)
+    except SuiteError as exc:
+        raise CliError(f'{exc}; see {procs[0].log_path.parent}') from None
+    finally:
+        client.close()
 
 
 def _served_url(procs: list) -> str:
@@ -211,12 +308,16 @@ def _wait_log(proc, text: str, timeout: float = 30.0) -> None:
 
 def cmd_goal(args: argparse.Namespace) -> int:
     """Send one goal to a running suite and report what became of it."""
-    from arm_sim.client import SuiteClient, SuiteError, stamp_of
+    from arm_sim.client import SuiteClient, SuiteError, goal_refusal, stamp_of
     from arm_sim.demo import start_pose
     from arm_sim.launcher import config_file
 
     if not (np.isfinite(args.x) and np.isfinite(args.y)):
         raise CliError(f'goal must be finite, got ({args.x}, {args.y})')
+    for option in ('timeout', 'tolerance'):
+        value = getattr(args, option)
+        if not (np.isfinite(value) and value > 0):
+            raise CliError(f'--{option} must be a positive number, got {value:g}', EXIT_USAGE)
     domain = _domain(args)
     client = SuiteClient(domain, args.namespace)
     try:
@@ -236,16 +337,15 @@ def cmd_goal(args: argparse.Namespace) -> int:
         except SuiteError as exc:
             raise CliError(str(exc), EXIT_TIMEOUT) from None
         n_traj, n_events = len(client.trajectories), len(client.events)
+        n_status = len(client.trajectory_statuses)
         client.publish_goal(args.x, args.y, args.frame)
 
         def refusal() -> str | None:
             """Why the goal will not be executed: the planner refused it or could not send
-            it, the controller refused its trajectory, or a time jump interrupted it."""
-            for e in client.events[n_events:]:
-                if ((e.node == 'planner' and e.kind.startswith('goal_'))
-                        or (e.node == 'controller' and e.kind == 'rejected_trajectory')):
-                    return e.message.removeprefix('goal_pose refused: ')
-            return None
+            it, the controller refused its trajectory for good (not a stale one the planner
+            plans again), or a time jump interrupted it."""
+            return goal_refusal(client.events[n_events:],
+                                client.trajectory_statuses[n_status:])
 
         try:
             client.spin_until(lambda: len(client.trajectories) > n_traj or refusal(),
@@ -302,12 +402,15 @@ def build_parser() -> argparse.ArgumentParser:
                        metavar='PORT',
                        help='also serve the topics to Foxglove over WebSocket on '
                        f'ws://localhost:PORT (default {DEFAULT_PORT}; 0 = a free port): '
-                       "the live node (setup.py extra 'foxglove')")
+                       "the live node (setup.py extra 'foxglove'); it refuses bad stamps, "
+                       'frame ids and numbers with a reason and keeps serving, and if it '
+                       'exits the run goes on without it (reported)')
 
     def domain_arg(p):
         p.add_argument('--domain-id', type=int, default=None,
-                       help='ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID, else a private one '
-                       'for demo/bringup)')
+                       help='ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID, else a free one no '
+                       'other arm_sim run holds); an explicit domain another arm_sim run '
+                       'holds is refused (exit 2)')
 
     demo = sub.add_parser(
         'demo', help='run the lecture tasks, record them and print the analysis',
@@ -316,7 +419,10 @@ def build_parser() -> argparse.ArgumentParser:
         'tip from Ps to Pf (regulation), then along the straight line Pf -> Ps slowly and '
         'fast under computed torque, and fast under plain PD. Prints how much torque, how '
         'much deviation and how long to settle, and writes a report picture. Both timing '
-        'modes record the same joint states, bit for bit.')
+        'modes record the same joint states, bit for bit. The run holds its ROS domain '
+        '(another arm_sim run on it is refused, exit 2) and first removes the Fast DDS '
+        'shared-memory files of processes that are gone (a killed run leaves them). With '
+        '--foxglove, a live view that exits is reported and the demo goes on.')
     demo.add_argument('--out', default=None,
                       help='output directory (default runs/demo-<time>)')
     demo.add_argument('--fast', type=float, default=0.8,
@@ -335,7 +441,12 @@ def build_parser() -> argparse.ArgumentParser:
         'bringup', help='start the suite and keep it running (Ctrl-C stops it)',
         description='Start simulator, controller, planner, visualizer (markers and '
         'robot_description) and recorder with config/arm.yaml and wait; drive it with '
-        'arm-sim goal.')
+        'arm-sim goal. The run holds its ROS domain (another arm_sim run on it is refused, '
+        'exit 2) and first removes the Fast DDS shared-memory files of processes that are '
+        'gone. The recorder holds every state from t = 0 (--composed too: its simulation '
+        'starts once the recorder and planner have the first state). A node of the suite '
+        'that exits stops the suite (exit 1, naming its log); the live view (--foxglove) '
+        'that exits is reported and the suite goes on.')
     bring.add_argument('--timing-mode', default='real_time', choices=TIMING_MODES,
                        help='simulator timing: real_time (default: lockstep at wall-clock '
                        'pace, for watching and driving by hand), lockstep (as fast as the '
@@ -345,7 +456,9 @@ def build_parser() -> argparse.ArgumentParser:
     bring.add_argument('--composed', action='store_true',
                        help='run simulator and controller in one process with one executor '
                        '(the composed executable): the loop never leaves the process, which '
-                       'holds real time at 1 kHz control (see bench/bench_loop.py)')
+                       'holds real time at 1 kHz control (see bench/bench_loop.py); it starts '
+                       'paused at t = 0 and runs once the recorder and the planner have that '
+                       'state')
     bring.add_argument('--namespace', default='', help='namespace for all nodes and topics')
     bring.add_argument('--no-record', dest='record', action='store_false',
                        help='do not start the recorder')
@@ -371,9 +484,9 @@ def build_parser() -> argparse.ArgumentParser:
     goal.add_argument('--frame', default='base_link', help='goal frame_id (default base_link)')
     goal.add_argument('--namespace', default='', help="the suite's namespace")
     goal.add_argument('--tolerance', type=float, default=1e-3,
-                      help='tip distance counting as reached [m] (default 0.001)')
+                      help='tip distance counting as reached [m], > 0 (default 0.001)')
     goal.add_argument('--timeout', type=float, default=20.0,
-                      help='wall-clock seconds to wait beyond the motion (default 20)')
+                      help='wall-clock seconds to wait beyond the motion, > 0 (default 20)')
     goal.add_argument('--domain-id', type=int, default=None,
                       help='ROS_DOMAIN_ID of the suite (default: $ROS_DOMAIN_ID or 0)')
     goal.set_defaults(func=cmd_goal)

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from rcl_interfaces.srv import SetParameters
 from rclpy.client import Client
@@ -43,6 +43,30 @@ def stamp_of(msg) -> float:
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
 
+def _level(status) -> int:
+    level = status.level
+    return level if isinstance(level, int) else level[0]
+
+
+def goal_refusal(events: Sequence[Event], statuses: Sequence) -> str | None:
+    """Why a goal will not be executed, from the suite's reports since it was sent (None:
+    nothing says so): the planner refused it (its ``goal_*`` reports: unreachable, wrong
+    frame, not sent, refused by the controller ...), or the controller refused its
+    trajectory for good (a ``refused`` status on ``arm_controller/trajectory_status``, the
+    DiagnosticStatuses ``statuses``). A refusal marked ``stale`` (the trajectory was planned
+    from a state simulated time has since left: "ends in the past") is not the goal's
+    refusal: the planner plans it again from the latest state, and reports
+    ``goal_refused_by_controller`` if it gives up."""
+    for e in events:
+        if e.node == 'planner' and e.kind.startswith('goal_'):
+            return e.message.removeprefix('goal_pose refused: ')
+    for s in statuses:
+        values = {kv.key: kv.value for kv in s.values}
+        if _level(s) != 0 and values.get('stale') != 'true':
+            return f'the controller {s.message}'
+    return None
+
+
 class SuiteClient:
     """Client of the suite in ``namespace`` on ROS domain ``domain_id``."""
 
@@ -56,6 +80,8 @@ class SuiteClient:
                                       context=self.context)
         self.states: list[JointState] = []
         self.trajectories: list[JointTrajectory] = []
+        # The controller's word on each trajectory (accepted, or refused and whether stale).
+        self.trajectory_statuses: list[DiagnosticStatus] = []
         self.reference_time = -math.inf  # stamp of the controller's latest answer [s]
         # The suite's /diagnostics (statuses '<ns>/<node>: <task>', arm_common.node.Diagnostics):
         self.diagnostics: list[tuple[str, int, str]] = []  # summaries: (node, level, message)
@@ -67,6 +93,8 @@ class SuiteClient:
         n.create_subscription(JointTrajectory, 'arm_controller/joint_trajectory',
                               self.trajectories.append, 10)
         n.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 100)
+        n.create_subscription(DiagnosticStatus, 'arm_controller/trajectory_status',
+                              self.trajectory_statuses.append, 10)
         n.create_subscription(JointState, 'arm_controller/reference', self._on_reference,
                               1000)
         self.goal_pub = n.create_publisher(PoseStamped, 'goal_pose', 10)
@@ -89,7 +117,7 @@ class SuiteClient:
             if ns != self.ns:
                 continue
             task = parsed[1]
-            level = s.level if isinstance(s.level, int) else s.level[0]
+            level = _level(s)
             values = {kv.key: kv.value for kv in s.values}
             if task == SUMMARY_TASK:
                 self.diagnostics.append((node, level, s.message))
@@ -134,6 +162,12 @@ class SuiteClient:
                 raise SuiteError(f'timed out after {timeout:g} s waiting for {what}')
             self._spin_once()
 
+    def spin_for(self, seconds: float, until: Callable[[], object] | None = None) -> None:
+        """Spin for ``seconds`` (wall), or until ``until()`` is truthy; never raises."""
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and not (until and until()):
+            self._spin_once()
+
     def _spin_once(self) -> None:
         executor = getattr(self, '_executor', None)
         if executor is None:
@@ -160,6 +194,25 @@ class SuiteClient:
         for key, result in zip(values, future.result().results):
             if not result.successful:
                 raise SuiteError(f'{name} refused {key}={values[key]!r}: {result.reason}')
+
+    def call_trigger(self, node: str, service: str, timeout: float = 10.0,
+                     alive: Callable[[], None] | None = None) -> str:
+        """Call ``node``'s std_srvs/Trigger service ``service`` (e.g. 'simulator', 'reset');
+        returns its message; SuiteError if it is not there, does not answer in ``timeout``
+        s or fails."""
+        from std_srvs.srv import Trigger
+
+        name = f'{self.node_name(node)}/{service}'
+        client = self._clients.get(name)
+        if client is None:
+            client = self._clients[name] = self.node.create_client(Trigger, name)
+        self.spin_until(client.service_is_ready, timeout, f'the {name} service', alive)
+        future = client.call_async(Trigger.Request())
+        self.spin_until(future.done, timeout, f'{name} to answer', alive)
+        reply = future.result()
+        if reply is None or not reply.success:
+            raise SuiteError(f'{name} failed: {getattr(reply, "message", "no reply")}')
+        return str(reply.message)
 
     def publish_goal(self, x: float, y: float, frame: str = 'base_link') -> None:
         msg = PoseStamped()

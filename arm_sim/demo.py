@@ -98,6 +98,7 @@ class Demo:
         ps = (x, y)
         self.tasks = scenario(ps, fast, slow)
         self.procs: list[NodeProcess] = []
+        self.lost: list[NodeProcess] = []  # optional nodes that exited (reported)
         self.results: list[TaskResult] = []
         self.warnings: list[str] = []
 
@@ -107,10 +108,18 @@ class Demo:
             log_path=self.out / 'logs' / f'{name}.log'))
 
     def _alive(self) -> None:
+        """SuiteError if a node of the suite exited; the live view (an extra) that exits is
+        reported once and the run goes on without it."""
         for p in self.procs:
-            if not p.alive():
-                raise SuiteError(f'{p.name} exited with code {p.proc.returncode}: '
-                                 f'{p.output().strip()[-300:]} (log: {p.log_path})')
+            if p.alive() or p in self.lost:
+                continue
+            if p.name == 'live':
+                self.lost.append(p)
+                self.echo(f'warning: the live view exited with code {p.proc.returncode} '
+                          f'(log: {p.log_path}); the demo goes on without it')
+                continue
+            raise SuiteError(f'{p.name} exited with code {p.proc.returncode}: '
+                             f'{p.output().strip()[-300:]} (log: {p.log_path})')
 
     def run(self) -> Path:
         """Run everything; returns the bag directory."""
@@ -141,7 +150,9 @@ class Demo:
             client.close()
             codes.update({p.name: p.stop(signal.SIGINT) for p in self.procs
                           if p.name not in codes})
-        bad = {n: c for n, c in codes.items() if c not in (0, -signal.SIGINT)}
+        reported = {p.name for p in self.lost}
+        bad = {n: c for n, c in codes.items()
+               if c not in (0, -signal.SIGINT) and n not in reported}
         if bad:
             raise SuiteError(f'processes did not stop cleanly: {bad}; see {self.out}/logs')
         return bag

@@ -3,15 +3,23 @@
 An executable is found the way ``ros2 run`` finds it (``<prefix>/lib/arm_sim/<exe>`` via
 the ament index) when arm_sim is installed in a ROS workspace, else as the console script
 next to this Python (a pip venv), else as ``python -m <module>``.
+
+Also what a run does before it starts its nodes: hold its explicit ROS domain
+(:func:`claim_explicit_domain`) and remove the Fast DDS shared-memory files of processes
+that are gone (:func:`remove_stale_shm`).
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
+import re
 import signal
+import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from arm_common.process import PARENT_ENV
@@ -129,3 +137,219 @@ class NodeProcess:
     def output(self) -> str:
         return self.log_path.read_text(errors='replace') if self.log_path else ''
 
+
+
+# ---------------------------------------------------------------------- the ROS domain
+class DomainInUse(Exception):
+    """The explicit ROS domain is held by another arm_sim run; the message says which."""
+
+
+#: The abstract Unix socket :func:`arm_common.process.claim_domain` binds to hold a domain
+#: (test_process.py checks both claims exclude each other).
+DOMAIN_CLAIM = '\0arm_sim_ros_domain_{}'
+_explicit: list[socket.socket] = []  # held for the life of the process
+
+
+def _parent(pid: int) -> int | None:
+    try:
+        return int(Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def ancestors(pid: int | None = None) -> list[int]:
+    """``pid`` (default: this process) and its parent, grandparent ... up to init."""
+    chain: list[int] = []
+    current: int | None = os.getpid() if pid is None else pid
+    while current and current not in chain:
+        chain.append(current)
+        current = _parent(current)
+    return chain
+
+
+def domain_holder(domain: int) -> int | None:
+    """The pid of a process holding ``domain``'s claim (an arm_sim run, a test session);
+    None if none is found (not held, or held by a process this user cannot see)."""
+    name = '@' + DOMAIN_CLAIM.format(domain)[1:]
+    try:
+        lines = Path('/proc/net/unix').read_text().splitlines()[1:]
+    except OSError:
+        return None
+    inodes = {f'socket:[{fields[6]}]' for fields in (line.split() for line in lines)
+              if len(fields) >= 8 and fields[7] == name}
+    if not inodes:
+        return None
+    for proc in Path('/proc').iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            if any(os.readlink(fd) in inodes for fd in (proc / 'fd').iterdir()):
+                return int(proc.name)
+        except OSError:
+            continue
+    return None
+
+
+def _describe(pid: int) -> str:
+    try:
+        argv = Path(f'/proc/{pid}/cmdline').read_bytes().split(b'\0')
+    except OSError:
+        return f'pid {pid}'
+    words = [a.decode(errors='replace') for a in argv if a]
+    if words and Path(words[0]).name.startswith('python'):
+        words = words[1:]
+    return f"pid {pid}: {' '.join(' '.join(words).split())[:120]}"  # one line
+
+
+def claim_explicit_domain(domain: int) -> None:
+    """Hold ROS domain ``domain`` (one the user chose) for this process, as
+    :func:`arm_common.process.claim_domain` holds the automatic ones, so no second arm_sim
+    run (demo, bringup, bench, test session) starts on it: two suites on one domain see
+    each other's simulator and fail with misleading reasons. A claim held by this process
+    or one of its ancestors (a test session that claimed the domain and runs demos on it,
+    a script that did) is this run's own.
+
+    Raises
+    ------
+    DomainInUse
+        Another run holds it; the message names that process.
+    """
+    for _ in range(3):  # a holder that exits meanwhile frees the id: try again
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            sock.bind(DOMAIN_CLAIM.format(domain))
+        except OSError:
+            sock.close()
+        else:
+            _explicit.append(sock)
+            return
+        holder = domain_holder(domain)
+        if holder is None:
+            continue
+        if holder in ancestors():
+            return
+        raise DomainInUse(f'ROS domain {domain} is in use by another arm_sim run '
+                          f'({_describe(holder)}); stop it, choose another --domain-id or '
+                          'leave it out for a free one')
+    raise DomainInUse(f'ROS domain {domain} is in use by another arm_sim run (a process '
+                      'this user cannot see); choose another --domain-id or leave it out '
+                      'for a free one')
+
+
+# ---------------------------------------------------------------------- shared memory
+SHM_DIR = Path('/dev/shm')
+#: Fast DDS's lock files in /dev/shm: a participant's segment ``fastrtps_<16 hex>`` (Fast
+#: DDS 2; ``fastdds_`` in 3) and a port ``fastrtps_port<N>`` each have an ``_el`` (or
+#: ``_sl``) file that its live owner keeps locked (flock), as ``fastdds shm clean`` reads it.
+_SHM_LOCK = re.compile(r'^(fastrtps|fastdds)_(port\d{1,5}|[0-9a-f]{16})_(el|sl)$')
+#: A port's named mutex (a POSIX semaphore) without its port.
+_SHM_MUTEX = re.compile(r'^sem\.(fastrtps|fastdds)_port(\d{1,5})_mutex$')
+#: How old an orphaned port mutex must be to be removed: a port being created has one
+#: for a moment before its files.
+MUTEX_AGE = 60.0  # s
+
+
+def shm_in_use(shm_dir: Path = SHM_DIR) -> set[str]:
+    """Names of the files in ``shm_dir`` some live process maps or has open (as far as
+    /proc shows this user)."""
+    prefix = str(shm_dir).rstrip('/') + '/'
+    used: set[str] = set()
+    for proc in Path('/proc').iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            for line in (proc / 'maps').read_text().splitlines():
+                path = line.split(maxsplit=5)[5:]
+                if path and path[0].startswith(prefix):
+                    used.add(path[0][len(prefix):].removesuffix(' (deleted)'))
+            for fd in (proc / 'fd').iterdir():
+                target = os.readlink(fd)
+                if target.startswith(prefix):
+                    used.add(target[len(prefix):])
+        except OSError:  # gone meanwhile, or not ours to read
+            continue
+    return used
+
+
+def _locked(path: Path) -> tuple[int | None, bool]:
+    """Open ``path`` and try to lock it as its owner does: (fd holding our lock, False) if
+    nobody holds it, (None, True) if a live owner does, (None, False) if it is gone."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    except FileNotFoundError:
+        return None, False
+    except OSError:
+        return None, True  # not ours to judge
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        return None, True
+    return fd, False
+
+
+def remove_stale_shm(shm_dir: Path = SHM_DIR) -> list[str]:
+    """Remove the Fast DDS shared-memory files whose owners are gone (a suite killed with
+    SIGKILL cannot remove its own) and return their names.
+
+    A segment or port is stale when no live process holds the lock of its ``_el``/``_sl``
+    file (Fast DDS's own rule, as ``fastdds shm clean`` applies it) and none maps or has
+    open any of its files (/proc/*/maps and fd; a process that still talks to a dead port
+    maps it, and keeps it). Its files go together: the segment or port, its lock files and
+    a port's mutex ``sem.fastrtps_port<N>_mutex``, the locks held by us while they are
+    removed. A port mutex left without its port goes once it is :data:`MUTEX_AGE` s old
+    and unmapped. Files of other users and anything not Fast DDS's are left alone."""
+    try:
+        names = set(os.listdir(shm_dir))
+    except OSError:
+        return []
+    locks = sorted(n for n in names if _SHM_LOCK.match(n))
+    mutexes = [n for n in names if _SHM_MUTEX.match(n)]
+    if not locks and not mutexes:
+        return []
+    used = shm_in_use(shm_dir)
+    removed: list[str] = []
+    seen: set[str] = set()
+    for lock in locks:
+        base = lock[:-3]
+        if base in seen:
+            continue
+        seen.add(base)
+        family = [base, f'{base}_el', f'{base}_sl']
+        if '_port' in base:
+            family.append(f'sem.{base}_mutex')
+        if any(f in used for f in family):
+            continue
+        fds: list[int] = []
+        try:
+            for f in family[1:3]:
+                fd, busy = _locked(shm_dir / f)
+                if busy:
+                    break
+                if fd is not None:
+                    fds.append(fd)
+            else:
+                for f in family:
+                    try:
+                        (shm_dir / f).unlink()
+                        removed.append(f)
+                    except FileNotFoundError:
+                        pass
+                    except OSError:
+                        break  # not ours to remove
+        finally:
+            for fd in fds:
+                os.close(fd)
+    now = time.time()
+    for mutex in mutexes:
+        port = mutex[len('sem.'):-len('_mutex')]
+        path = shm_dir / mutex
+        try:
+            if (port in names or mutex in used
+                    or now - path.stat().st_mtime < MUTEX_AGE or mutex in removed):
+                continue
+            path.unlink()
+            removed.append(mutex)
+        except OSError:
+            continue
+    return removed

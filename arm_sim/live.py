@@ -21,6 +21,12 @@ extra ``foxglove``, imported only when a bridge is made) and the computations it
   simulated time (the latest ``clock``), as foxglove_bridge does with ``use_sim_time``, so
   the 3D panel's time is the joint states' stamps' time.
 
+* **Validation** (:func:`stamp_refusal`, :func:`text_refusal`, :func:`pose_refusal`):
+  a stamp or time that is negative, overflows ``builtin_interfaces/Time`` or has
+  ``nanosec`` outside [0, 1e9), a frame id with a NUL character and a non-finite number
+  are refused with the reason, whether they come from a ROS topic or a client; the node
+  reports them and keeps serving.
+
 The SDK calls the listener from its own threads; they only queue work (:meth:`Bridge.poll`
 takes it on the caller's thread), so every ROS call stays on the node's thread.
 
@@ -40,6 +46,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, cast
 
+from arm_bag.cdr import Cursor
 from arm_bag.msgdefs import schema_text
 from arm_dynamics.models import RobotModel
 from arm_dynamics.urdf import link_frames
@@ -60,6 +67,9 @@ CLIENT_ENCODINGS = ('cdr', 'json')
 FRAMES = ('base_link', 'link1', 'link2', 'tool0')
 #: CDR encapsulation header: XCDR1, little endian, no options.
 CDR_HEADER = b'\x00\x01\x00\x00'
+NS_PER_S = 1_000_000_000
+#: The latest ``builtin_interfaces/Time`` second: ``sec`` is an int32.
+MAX_STAMP_SEC = 2**31 - 1
 
 
 # ---------------------------------------------------------------------- kinematics
@@ -122,6 +132,68 @@ def joint_positions(names: Sequence[str], positions: Sequence[float],
     return [float(positions[index[n]]) for n in joint_names]
 
 
+# ---------------------------------------------------------------------- validation
+def stamp_refusal(sec: object, nanosec: object, what: str = 'header.stamp') -> str | None:
+    """Why (``sec``, ``nanosec``) is no valid simulated time stamp, or None: both must be
+    integers, ``sec`` in [0, 2^31 - 1] (simulated time starts at 0; builtin_interfaces/Time
+    holds an int32) and ``nanosec`` in [0, 1e9) (more is a second and belongs in ``sec``).
+    ``what`` names the field in the reason."""
+    if isinstance(sec, bool) or not isinstance(sec, int):
+        return f'{what}.sec must be an integer, got {sec!r}'
+    if isinstance(nanosec, bool) or not isinstance(nanosec, int):
+        return f'{what}.nanosec must be an integer, got {nanosec!r}'
+    if sec < 0:
+        return f'{what} is negative (sec = {sec}): simulated time starts at 0'
+    if sec > MAX_STAMP_SEC:
+        return (f'{what}.sec = {sec} overflows builtin_interfaces/Time (an int32: at most '
+                f'{MAX_STAMP_SEC})')
+    if not 0 <= nanosec < NS_PER_S:
+        return f'{what}.nanosec = {nanosec} is outside [0, 1e9)'
+    return None
+
+
+def text_refusal(text: object, what: str) -> str | None:
+    """Why ``text`` is no usable string field (a frame id, a name), or None: it must be a
+    str without NUL characters (a ROS string ends at its first NUL: 'base_link\\0x' would
+    silently become 'base_link')."""
+    if not isinstance(text, str):
+        return f'{what} must be a string, got {text!r}'
+    if '\x00' in text:
+        return f'{what} {text!r} contains a NUL character'
+    return None
+
+
+def cdr_header(data: bytes, frame: bool = True) -> tuple[int, int, str]:
+    """(sec, nanosec, frame_id) of a serialised message that begins with a
+    ``std_msgs/Header`` (JointState, PoseStamped; frame id '' with ``frame`` False: one that
+    begins with a ``builtin_interfaces/Time``, a Clock), read from the bytes as they were
+    sent: rclpy's deserialisation cuts a string at its first NUL, which the bytes forwarded
+    to a client still hold. Raises :class:`arm_bag.cdr.CdrError` (a ValueError) if
+    malformed."""
+    c = Cursor(data)
+    sec = c.u32()
+    nanosec = c.u32()
+    return (sec - 2**32 if sec >= 2**31 else sec), nanosec, (c.string() if frame else '')
+
+
+def pose_refusal(sec: object, nanosec: object, frame_id: object,
+                 position: Sequence[object], orientation: Sequence[object]) -> str | None:
+    """Why a PoseStamped with these fields cannot be published into ROS, or None: a valid
+    stamp (:func:`stamp_refusal`), a frame id without NUL (:func:`text_refusal`) and finite
+    numbers."""
+    reason = (stamp_refusal(sec, nanosec, 'header.stamp')
+              or text_refusal(frame_id, 'header.frame_id'))
+    if reason:
+        return reason
+    for what, keys, values in (('pose.position', 'xyz', position),
+                               ('pose.orientation', 'xyzw', orientation)):
+        for k, v in zip(keys, values):
+            if (isinstance(v, bool) or not isinstance(v, (int, float))
+                    or not math.isfinite(v)):
+                return f'{what}.{k} must be a finite number, got {v!r}'
+    return None
+
+
 # ---------------------------------------------------------------------- messages
 def cdr_string(text: str) -> bytes:
     """A ``std_msgs/msg/String`` serialised as CDR (XCDR1, little endian)."""
@@ -160,7 +232,9 @@ def pose_from_json(data: bytes | str) -> GoalPose:
     Raises
     ------
     ValueError
-        Not JSON, or a field of the wrong kind (named).
+        Not JSON, or a field of the wrong kind (named), a stamp that is negative, overflows
+        or has ``nanosec`` outside [0, 1e9), a frame id with a NUL character, a non-finite
+        number (:func:`pose_refusal`).
     """
     try:
         doc = json.loads(data)
@@ -176,13 +250,14 @@ def pose_from_json(data: bytes | str) -> GoalPose:
     if not all(isinstance(v, int) and not isinstance(v, bool) for v in (sec, nsec)):
         raise ValueError(f'header.stamp must hold integers, got {dict(stamp)!r}')
     frame = header.get('frame_id', '')
-    if not isinstance(frame, str):
-        raise ValueError(f'header.frame_id must be a string, got {frame!r}')
     pose = doc.get('pose') or {}
     if not isinstance(pose, Mapping):
         raise ValueError('pose must be an object with position and orientation')
     position = _numbers(pose.get('position') or {}, 'xyz', 'pose.position')
     orientation = _numbers(pose.get('orientation') or {}, 'xyzw', 'pose.orientation')
+    reason = pose_refusal(sec, nsec, frame, position, orientation)
+    if reason:
+        raise ValueError(reason)
     return GoalPose(int(sec), int(nsec), frame,
                     (position[0], position[1], position[2]),
                     (orientation[0], orientation[1], orientation[2], orientation[3]))

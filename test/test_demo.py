@@ -294,3 +294,25 @@ def test_demo_energy_is_the_change_in_mechanical_energy_to_a_nanojoule(demo_runs
     assert abs(report['run']['energy'] - change) < 1e-9
     assert sum(s['energy'] for s in report['segments']) == pytest.approx(
         report['run']['energy'], abs=1e-9)
+
+
+def test_a_demo_on_a_domain_another_run_holds_is_refused_in_one_line(tmp_path):
+    """Two demos on one explicit --domain-id both failed with misleading reasons (timed
+    out, too near a singularity): the second is refused at once, naming the first."""
+    hold = ('import sys; from arm_common.process import claim_domain; '
+            'print(claim_domain(140), flush=True); sys.stdin.read()')
+    other = subprocess.Popen([sys.executable, '-c', hold], stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, text=True)
+    try:
+        domain = int(other.stdout.readline())  # type: ignore[union-attr]
+        res = subprocess.run(demo_command(tmp_path / 'out', domain), capture_output=True,
+                             text=True, timeout=120, env=node_env(domain))
+    finally:
+        other.stdin.close()  # type: ignore[union-attr]
+        other.wait(30)
+    assert res.returncode == 2, res.stdout + res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f'arm-sim demo: ROS domain {domain} is in use by another '
+                               f'arm_sim run (pid {other.pid}: '), lines[0]
+    assert not (tmp_path / 'out').exists(), 'nothing started'

@@ -17,8 +17,11 @@ import time
 import numpy as np
 import pytest
 import yaml
+from conftest import statuses
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.serialization import deserialize_message, serialize_message
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
@@ -28,10 +31,14 @@ from arm_sim.launcher import config_file, node_env
 from arm_sim.live import (
     FRAMES,
     arm_transforms,
+    cdr_header,
     cdr_string,
     goal_channel_refusal,
     joint_positions,
     pose_from_json,
+    pose_refusal,
+    stamp_refusal,
+    text_refusal,
 )
 
 websockets = pytest.importorskip('websockets')
@@ -112,6 +119,51 @@ def test_client_goals_json_and_refusals():
     assert 'encoding' in goal_channel_refusal('/goal_pose', '/goal_pose', 'protobuf', '')
     assert 'schema' in goal_channel_refusal('/goal_pose', '/goal_pose', 'cdr',
                                             'geometry_msgs/msg/Pose')
+
+
+def test_stamps_frame_ids_and_numbers_are_validated():
+    assert stamp_refusal(0, 0) is None and stamp_refusal(2**31 - 1, 999_999_999) is None
+    assert 'negative' in stamp_refusal(-5, 0)
+    assert 'overflows' in stamp_refusal(2**31, 0)
+    assert 'nanosec = -1 is outside [0, 1e9)' in stamp_refusal(0, -1)
+    assert 'nanosec = 1000000000 is outside' in stamp_refusal(0, 1_000_000_000)
+    assert 'must be an integer' in stamp_refusal(1.5, 0)
+    assert 'must be an integer' in stamp_refusal(0, True)
+    assert text_refusal('base_link', 'frame') is None
+    assert 'NUL' in text_refusal('base\x00link', 'frame')
+    assert 'must be a string' in text_refusal(3, 'frame')
+    ok = ((0.5, 1.2, 0.0), (0.0, 0.0, 0.0, 1.0))
+    assert pose_refusal(1, 2, 'base_link', *ok) is None
+    assert 'pose.position.y' in pose_refusal(1, 2, '', (0.5, math.inf, 0.0), ok[1])
+    assert 'pose.orientation.w' in pose_refusal(1, 2, '', ok[0], (0, 0, 0, math.nan))
+
+
+@pytest.mark.parametrize('doc, reason', [
+    ({'header': {'stamp': {'sec': 0, 'nanosec': -1}}}, 'nanosec = -1 is outside [0, 1e9)'),
+    ({'header': {'stamp': {'sec': 1, 'nsec': 2_000_000_000}}}, 'nanosec = 2000000000'),
+    ({'header': {'stamp': {'sec': -5, 'nanosec': 0}}}, 'negative'),
+    ({'header': {'stamp': {'sec': 2**40}}}, 'overflows'),
+    ({'header': {'frame_id': 'base_link\x00x'}}, 'NUL'),
+    ({'header': {'frame_id': 7}}, 'must be a string'),
+])
+def test_client_json_goals_with_bad_stamps_or_frames_are_refused(doc, reason):
+    with pytest.raises(ValueError, match=re.escape(reason)):
+        pose_from_json(json.dumps(doc))
+
+
+def test_the_header_is_read_from_the_bytes_as_sent():
+    """rclpy cuts a string at its first NUL; the bytes (forwarded to clients) keep it."""
+    msg = JointState()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = -5, 7
+    msg.header.frame_id = 'baseXlink'
+    raw = serialize_message(msg).replace(b'baseXlink', b'base\x00link')
+    assert deserialize_message(raw, JointState).header.frame_id == 'base'
+    assert cdr_header(raw) == (-5, 7, 'base\x00link')
+    clock = Clock()
+    clock.clock.sec, clock.clock.nanosec = 3, 4
+    assert cdr_header(serialize_message(clock), frame=False) == (3, 4, '')
+    with pytest.raises(ValueError):
+        cdr_header(b'\x00\x01\x00\x00\x01')
 
 
 # ---------------------------------------------------------------------- protobuf
@@ -358,3 +410,128 @@ def _moving(c: Client, n: int) -> bool:
     recent = c.messages['/joint_states'][n:]
     return any(np.abs(deserialize_message(d, JointState).velocity).max() > 1e-2
                for _, d in recent[-5:])
+
+
+# ---------------------------------------------------------------------- bad input
+class ThreadedClient:
+    """A :class:`Client` receiving in its own thread and event loop, so the test's ROS node
+    can publish and spin meanwhile."""
+
+    def __init__(self, url: str) -> None:
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        self.c: Client = self.run(self._connect(url))
+        self.receiving = asyncio.run_coroutine_threadsafe(self._receive(), self.loop)
+
+    def run(self, coro, timeout: float = 30.0):
+        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout)
+
+    async def _connect(self, url: str) -> Client:
+        return Client(await websockets.connect(url, subprotocols=SUBPROTOCOLS, max_size=None))
+
+    async def _receive(self) -> None:
+        async for m in self.c.ws:
+            self.c.handle(m)
+
+    def send(self, data) -> None:
+        self.run(self.c.ws.send(data))
+
+    def close(self) -> None:
+        try:
+            self.run(self.c.ws.close(), timeout=10)
+        finally:
+            self.loop.call_soon_threadsafe(self.loop.stop)
+            self.thread.join(10)
+
+
+def _state(sec: int, nanosec: int, q=(0.1, 0.2), frame: str = '') -> JointState:
+    msg = JointState(name=['joint1', 'joint2'], position=[float(v) for v in q],
+                     velocity=[0.0, 0.0], effort=[0.0, 0.0])
+    msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+    msg.header.frame_id = frame
+    return msg
+
+
+def _clock(sec: int, nanosec: int = 0) -> Clock:
+    msg = Clock()
+    msg.clock.sec, msg.clock.nanosec = sec, nanosec
+    return msg
+
+
+def test_the_live_node_refuses_bad_stamps_frames_and_goals_and_keeps_serving(ros, launch):
+    """Negative, overflowing and out-of-range stamps on joint_states and clock, a NUL in a
+    frame id, non-finite positions, and a client's JSON goal with nanosec -1 (each once
+    took the node down, exit 1): each is refused with its reason on /diagnostics, never
+    forwarded or published, and the node goes on serving good messages (and stops cleanly
+    at the end: the launch fixture checks its exit code)."""
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    goals = ros.collect(PoseStamped, 'goal_pose')
+    live = launch('live', params={'port': 0})
+    found = ros.wait_for(lambda: re.search(r'serving (ws://\S+)', live.output()), timeout=60,
+                         what='the live node to serve')
+    states_pub = ros.publisher(JointState, 'joint_states')
+    clock_pub = ros.publisher(Clock, 'clock')
+    client = ThreadedClient(found.group(1))
+    try:
+        c = client.c
+        ros.wait_for(lambda: {'/joint_states', '/clock'} <= set(c.channels),
+                     what='the channels')
+        client.run(c.subscribe('/joint_states', '/clock'))
+        ros.wait_for(lambda: states_pub.get_subscription_count() > 0
+                     and clock_pub.get_subscription_count() > 0, what='the live node to subscribe')
+
+        def reported(kind: str, reason: str) -> bool:
+            return any(reason in s.message for s in statuses(diags, '/live', kind))
+
+        nul = serialize_message(_state(1, 0, frame='baseXlink')).replace(b'baseXlink',
+                                                                          b'base\x00link')
+        bad = [(states_pub, _state(-5, 0), 'rejected_joint_state', 'header.stamp is negative'),
+               (states_pub, _state(1, 2_000_000_000), 'rejected_joint_state',
+                'header.stamp.nanosec = 2000000000 is outside [0, 1e9)'),
+               (states_pub, nul, 'rejected_joint_state', 'contains a NUL character'),
+               (states_pub, _state(1, 0, q=(math.nan, 0.2)), 'rejected_joint_state',
+                'q must be two finite joint positions'),
+               (clock_pub, _clock(-5), 'rejected_clock', 'clock is negative')]
+        for pub, msg, kind, reason in bad:
+            ros.wait_for(lambda: reported(kind, reason) or pub.publish(msg), timeout=30,
+                         what=f'{kind}: {reason}')
+            assert live.alive(), live.output()[-3000:]
+
+        # Still serving: a good state and time are forwarded, with the state's frames.
+        assert '/tf' not in c.channels, 'no frames were sent for a refused state'
+        good = _state(1, 500_000_000)
+        ros.wait_for(lambda: '/tf' in c.channels or states_pub.publish(good),
+                     what='the frames of the good state')  # the channel comes with them
+        client.run(c.subscribe('/tf'))
+        ros.wait_for(lambda: c.messages.get('/tf') and c.messages.get('/clock')
+                     or states_pub.publish(good) or clock_pub.publish(_clock(1, 500_000_000)),
+                     what='the good state and time forwarded')
+        stamps = [(m.header.stamp.sec, m.header.stamp.nanosec, m.header.frame_id)
+                  for m in (deserialize_message(d, JointState)
+                            for _, d in c.messages.get('/joint_states', []))]
+        assert stamps and set(stamps) == {(1, 500_000_000, '')}, 'only the good state'
+        assert {deserialize_message(d, Clock).clock.sec for _, d in c.messages['/clock']} == {1}
+        assert {t['stamp'] for _, d in c.messages['/tf']
+                for t in decode_frame_transforms(d)} == {1_500_000_000}
+
+        # A client's JSON goal with nanosec -1: refused with a status; a good one goes out.
+        client.send(json.dumps({'op': 'advertise', 'channels': [{
+            'id': 3, 'topic': '/goal_pose', 'encoding': 'json',
+            'schemaName': 'geometry_msgs/msg/PoseStamped'}]}))
+        goal = {'header': {'stamp': {'sec': 0, 'nanosec': -1}, 'frame_id': 'base_link'},
+                'pose': {'position': {'x': 0.5, 'y': 1.2}}}
+        data = struct.pack('<BI', 1, 3) + json.dumps(goal).encode()
+        ros.wait_for(lambda: reported('rejected_goal', 'nanosec = -1 is outside [0, 1e9)')
+                     or client.send(data), what='the bad goal refused')
+        ros.wait_for(lambda: any('nanosec = -1' in s['message'] for s in c.statuses),
+                     what='the status message to the client')
+        assert live.alive(), live.output()[-3000:]
+        assert not goals, 'nothing published into ROS'
+        goal['header']['stamp']['nanosec'] = 5
+        data = struct.pack('<BI', 1, 3) + json.dumps(goal).encode()
+        ros.wait_for(lambda: goals or client.send(data), what='the good goal published')
+        assert (goals[0].header.stamp.nanosec, goals[0].header.frame_id) == (5, 'base_link')
+    finally:
+        client.close()
+    assert live.alive(), live.output()[-3000:]
