@@ -71,6 +71,13 @@ def steady_clock() -> Clock:
     return Clock(clock_type=ClockType.STEADY_TIME)
 
 
+#: History depth of the streams the recorder takes (states, clock, commands, references):
+#: a reliable writer keeps this many unacknowledged messages, so a recorder that falls
+#: behind a fast lockstep loop for a while (1 s at 1 kHz, 10 s at 100 Hz) still gets every
+#: one; with depth 10 a busy machine lost hundreds of states of a composed lockstep run.
+STREAM_DEPTH = 1000
+
+
 def latched_qos() -> QoSProfile:
     """QoS of a state-like topic, published once per change (a plan's path, the verdict on
     the latest trajectory): reliable, transient local, keep last 1, as robot_state_publisher

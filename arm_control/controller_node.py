@@ -20,6 +20,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory
 
 from arm_common.node import (
+    STREAM_DEPTH,
     ConfigError,
     Diagnostics,
     clock_in_namespace,
@@ -131,8 +132,9 @@ class ControllerNode(Node):
         self.core = ControllerCore(p['joint_names'], law,
                                    jump_threshold=p['time_jump_threshold'], limits=limits)
         self.cmd_pub = self.create_publisher(Float64MultiArray, 'effort_controller/commands',
-                                             10)
-        self.ref_pub = self.create_publisher(JointState, 'arm_controller/reference', 10)
+                                             STREAM_DEPTH)
+        self.ref_pub = self.create_publisher(JointState, 'arm_controller/reference',
+                                             STREAM_DEPTH)
         # Latched: what became of the latest trajectory is the controller's state (what it
         # executes, or why not) for whoever looks later; each sender reads its own verdict
         # as it comes (one per trajectory received, seconds apart).

@@ -20,6 +20,7 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 
 from arm_common.node import (
+    STREAM_DEPTH,
     ConfigError,
     Diagnostics,
     clock_in_namespace,
@@ -201,8 +202,8 @@ class SimulatorNode(Node):
                                  hold_until_command=p['wait_for_command'],
                                  report_after_ns=_ns(p['command_timeout']))
         self.keeper.pause_at_ns = _pause_ns(p['pause_at'])
-        self.state_pub = self.create_publisher(JointState, 'joint_states', 10)
-        self.clock_pub = self.create_publisher(Clock, 'clock', 10)
+        self.state_pub = self.create_publisher(JointState, 'joint_states', STREAM_DEPTH)
+        self.clock_pub = self.create_publisher(Clock, 'clock', STREAM_DEPTH)
         self.create_subscription(Float64MultiArray, 'effort_controller/commands',
                                  self._on_command, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)

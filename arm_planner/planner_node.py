@@ -492,8 +492,10 @@ class PlannerNode(Node):
         self._release_if_idle()  # confirmed or refused: time may move on
         if _level(status.level) == 0:
             self.active = (sent['stamp'], sent['goal'])
+            # Where the controller started it (a plan stamped 0 starts on arrival).
+            start = values.get('start_time') or f"{sent['stamp'] * 1e-9:.9f}"
             self.diag.event('plan_accepted', f"controller: {status.message}",
-                            start_time=f"{sent['stamp'] * 1e-9:.9f}")
+                            start_time=start)
             return
         self.active = None
         goal = sent['goal']
