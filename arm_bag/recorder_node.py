@@ -72,6 +72,7 @@ from rclpy.subscription import Subscription
 
 from arm_bag.loss import GapCounter, missed_before_first
 from arm_bag.msgdefs import MessageDefinitionError, QosProfile, qos_yaml, schema_text, type_hash
+from arm_bag.topics import DEFAULT_TOPICS, KNOWN_TOPICS, LATCHED
 from arm_bag.writer import BagWriteError, BagWriter
 from arm_common.node import (
     ConfigError,
@@ -101,23 +102,6 @@ arm-sim analyze. SIGINT/SIGTERM close the bag (exit 0); a SIGKILL loses at most 
 flush_period of messages and the bag is completed the next time arm_sim opens it. The robot
 parameters are stored in the MCAP metadata record arm_sim_robot.
 '''
-#: The suite's topics (relative to the recorder's namespace; '/x' absolute) and types.
-KNOWN_TOPICS = {
-    'joint_states': 'sensor_msgs/msg/JointState',
-    'effort_controller/commands': 'std_msgs/msg/Float64MultiArray',
-    'arm_controller/reference': 'sensor_msgs/msg/JointState',
-    'arm_controller/joint_trajectory': 'trajectory_msgs/msg/JointTrajectory',
-    'arm_controller/trajectory_status': 'diagnostic_msgs/msg/DiagnosticStatus',
-    'goal_pose': 'geometry_msgs/msg/PoseStamped',
-    'planner/path': 'nav_msgs/msg/Path',
-    'markers': 'visualization_msgs/msg/MarkerArray',
-    'robot_description': 'std_msgs/msg/String',
-    'clock': 'rosgraph_msgs/msg/Clock',
-    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
-}
-#: Known topics whose publishers are transient local (latched).
-LATCHED = frozenset({'planner/path', 'arm_controller/trajectory_status', 'robot_description'})
-DEFAULT_TOPICS = list(KNOWN_TOPICS)
 DISCOVERY_PERIOD = 0.1  # s, wall clock: the fallback poll (rosbag2's default)
 #: s, wall clock from the recorder's start: by then it has seen every publisher that
 #: existed when it started, so one it first sees later appeared while it recorded and its

@@ -19,6 +19,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory
 
+from arm_common.gate import WAIT_FOR_NODES, SubscriberGate
 from arm_common.node import (
     STREAM_DEPTH,
     ConfigError,
@@ -96,7 +97,8 @@ CONTROL_PARAMS: tuple[ParamSpec, ...] = (
               maximum=1e4, read_only=True, per_joint=True)
     for k in MODEL_KEYS
 ) + (ParamSpec('control_model.gravity', 'double', -1.0, 'Controller model gravity; negative = the '
-               'robot parameter', 'm/s^2', maximum=100.0, read_only=True),)
+               'robot parameter', 'm/s^2', maximum=100.0, read_only=True),
+     WAIT_FOR_NODES)
 
 
 def _stamp(msg) -> float:
@@ -141,6 +143,8 @@ class ControllerNode(Node):
         self.status_pub = self.create_publisher(DiagnosticStatus,
                                                 'arm_controller/trajectory_status',
                                                 latched_qos())
+        # Commands and references wait for wait_for_nodes (e.g. the recorder) to match them.
+        self.gate = SubscriberGate(self, [self.cmd_pub, self.ref_pub], p['wait_for_nodes'])
         self.create_subscription(JointState, 'joint_states', self._on_state, 10)
         self.create_subscription(JointTrajectory, 'arm_controller/joint_trajectory',
                                  self._on_trajectory, 10)
@@ -288,6 +292,8 @@ class ControllerNode(Node):
 
     def _control(self, stamp_ns: int | None) -> None:
         assert self.latest is not None  # called once a state has arrived
+        if not self.gate.ready(self.diag, 'the first command'):
+            return  # lockstep: the simulator re-sends the state; timer: the next tick
         t, q, qd = self.latest
         core = self.core
         moving = (self.active_msg is not None and core.last_time is not None

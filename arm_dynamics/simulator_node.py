@@ -19,6 +19,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 
+from arm_common.gate import WAIT_FOR_NODES, SubscriberGate
 from arm_common.node import (
     STREAM_DEPTH,
     ConfigError,
@@ -145,6 +146,7 @@ SIM_PARAMS: tuple[ParamSpec, ...] = (
               minimum=0.0, read_only=True),
     ParamSpec('geared.effort_limit', 'double', 1.0, 'Geared link: motor torque limit',
               'N m', minimum=0.0, strict_min=True, read_only=True),
+    WAIT_FOR_NODES,
 )
 
 
@@ -204,6 +206,10 @@ class SimulatorNode(Node):
         self.keeper.pause_at_ns = _pause_ns(p['pause_at'])
         self.state_pub = self.create_publisher(JointState, 'joint_states', STREAM_DEPTH)
         self.clock_pub = self.create_publisher(Clock, 'clock', STREAM_DEPTH)
+        # The first state waits for wait_for_nodes (e.g. the recorder) to match joint_states
+        # and clock; until then time is held at t = 0 and nothing is published.
+        self.gate = SubscriberGate(self, [self.state_pub, self.clock_pub],
+                                   p['wait_for_nodes'])
         self.create_subscription(Float64MultiArray, 'effort_controller/commands',
                                  self._on_command, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
@@ -222,7 +228,10 @@ class SimulatorNode(Node):
         self.create_timer(0.05, self._housekeeping, clock=steady_clock())
         on_parameter_changes(self, SIM_PARAMS, self._validate_change, self._apply_change,
                              values=self.params)
+        self.keeper.held = not self.gate.opened
         self.publish_state(new_state=True)
+        if not self.gate.opened:
+            self._summarise()
         self.get_logger().info(
             f"{p['model']} in {p['timing_mode']} mode: physics step {p['physics_step']:g} s, "
             f"publishing at {p['publish_rate']:g} Hz, q0={self.core.q.tolist()}")
@@ -366,6 +375,8 @@ class SimulatorNode(Node):
             self._try_step()
 
     def publish_state(self, new_state: bool = False) -> None:
+        if not self.gate.opened:
+            return  # the first state goes out once the gate opens (_housekeeping)
         view = self.core.joint_view()
         msg = JointState(name=list(view.names), position=view.position,
                          velocity=view.velocity, effort=view.effort)
@@ -380,6 +391,10 @@ class SimulatorNode(Node):
     def _housekeeping(self) -> None:
         now = time.monotonic_ns()
         k = self.keeper
+        if not self.gate.opened and self.gate.ready(self.diag, 'the first state'):
+            self.publish_state(new_state=True)
+            if self.held_since is None:  # no client holds time meanwhile
+                self._release(now)
         sim = self.core.time_ns
         waited = k.overdue_s(sim, now)
         if waited is None:
@@ -437,6 +452,9 @@ class SimulatorNode(Node):
             level, message = 'ERROR', core.diverged
         elif self.paused:
             level, message = 'OK', f'paused at t={core.time:.3f} s (pause_at)'
+        elif not self.gate.opened:
+            level, message = 'OK', ('holding the first state until '
+                                    f"{', '.join(self.gate.nodes)} subscribed (wait_for_nodes)")
         elif k.held:
             level, message = 'OK', f'held at t={core.time:.3f} s (~/hold: a goal is planned)'
         elif k.holding():
@@ -502,7 +520,7 @@ class SimulatorNode(Node):
         return response
 
     def _release(self, now: int) -> None:
-        self.keeper.held = False
+        self.keeper.held = not self.gate.opened  # before the first state: still held
         self.held_since = None
         self.keeper.reanchor(now)
         if self.mode == 'wall_clock':

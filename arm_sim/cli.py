@@ -118,7 +118,7 @@ def cmd_bringup(args: argparse.Namespace) -> int:
     """Start the suite and keep it running until Ctrl-C."""
     from arm_bag.recorder_node import FIRST_MESSAGE
     from arm_planner.planner_node import FIRST_STATE
-    from arm_sim.launcher import NodeProcess, config_file
+    from arm_sim.launcher import NodeProcess, config_file, recorder_gates
 
     domain = _domain(args, claim=True)
     params_file = Path(args.params_file) if args.params_file else config_file()
@@ -136,6 +136,13 @@ def cmd_bringup(args: argparse.Namespace) -> int:
     # Composed: the controller answers the first state in the same process at once, so the
     # simulation starts paused at t = 0 and runs once the others have its first state.
     overrides['composed'] = {'simulator': {'timing_mode': args.timing_mode, 'pause_at': 0.0}}
+    if args.record and not args.composed:
+        # The simulator, controller and visualizer send nothing before the recorder has
+        # matched them, so the bag holds their first messages. (Composed starts before
+        # the recorder: what it sends then is not the recording's.)
+        for name, sections in recorder_gates(params_file).items():
+            for node, values in sections.items():
+                overrides.setdefault(name, {}).setdefault(node, {}).update(values)
     if args.foxglove is not None:  # the Foxglove bridge first: it sees the suite from the start
         nodes.insert(0, 'live')
         overrides['live'] = {'live': {'port': args.foxglove}}

@@ -23,7 +23,7 @@ import yaml
 from arm_bag.recorder_node import DEFAULT_TOPICS
 from arm_dynamics import TwoLinkArm
 from arm_sim.client import SuiteClient, SuiteError, stamp_of
-from arm_sim.launcher import NodeProcess, config_file
+from arm_sim.launcher import NodeProcess, config_file, recorder_gates
 
 PF = (0.5, 1.2)  # m: the regulation goal
 SETTLE = 1.0  # s of simulated time after each planned motion
@@ -93,6 +93,7 @@ class Demo:
         self.domain = domain_id
         self.echo = echo
         self.config = config_file()
+        self.gates = recorder_gates(self.config)
         self.arm, self.q0 = start_pose(self.config)
         x, y = (float(v) for v in self.arm.forward_kinematics(self.q0))
         ps = (x, y)
@@ -103,6 +104,9 @@ class Demo:
         self.warnings: list[str] = []
 
     def _start(self, name: str, **params) -> None:
+        # The simulator, controller and visualizer send nothing before the recorder has
+        # matched them: the bag holds their first messages (arm_sim.launcher.recorder_gates).
+        params = {**self.gates.get(name, {}).get(name, {}), **params}
         self.procs.append(NodeProcess(
             name, params_file=self.config, params=params, domain_id=self.domain,
             log_path=self.out / 'logs' / f'{name}.log'))

@@ -77,6 +77,39 @@ def node_env(domain_id: int | None = None, localhost: bool = True) -> dict[str, 
     return env
 
 
+#: The nodes whose first messages wait for the recorder in a recorded run (``wait_for_nodes:
+#: [recorder]``, :mod:`arm_common.gate`) and the topics each gates.
+GATED = {'simulator': ('joint_states', 'clock'),
+         'controller': ('effort_controller/commands', 'arm_controller/reference'),
+         'visualizer': ('markers',)}
+
+
+def recorder_gates(params_file: str | Path | None) -> dict[str, dict]:
+    """Per-node parameter overrides that make the simulator, controller and visualizer of a
+    recorded run send nothing until the recorder has matched them, so the bag holds their
+    first messages (a node started after the recorder may otherwise publish before the
+    recorder's subscription reaches it; those messages are counted lost). Only nodes all
+    of whose gated topics the recorder records: when ``params_file`` sets the recorder's
+    ``topics``, a node it leaves out is not gated (it would wait for nothing)."""
+    import yaml
+
+    from arm_bag.topics import DEFAULT_TOPICS
+
+    topics = set(DEFAULT_TOPICS)
+    if params_file:
+        try:
+            data = yaml.safe_load(Path(params_file).read_text()) or {}
+        except (OSError, yaml.YAMLError):
+            data = {}
+        for key, section in (data.items() if isinstance(data, dict) else ()):
+            values = section.get('ros__parameters') if isinstance(section, dict) else None
+            if (str(key).rstrip('/').endswith(('recorder', '/**')) or key == '/**') \
+                    and isinstance(values, dict) and isinstance(values.get('topics'), list):
+                topics = {str(t).lstrip('/') for t in values['topics']}
+    return {node: {node: {'wait_for_nodes': ['recorder']}} for node, gated in GATED.items()
+            if all(t in topics for t in gated)}
+
+
 class NodeProcess:
     """One node as a child process, its output in ``log_path``."""
 

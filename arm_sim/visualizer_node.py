@@ -19,6 +19,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import ColorRGBA, Header, String
 from visualization_msgs.msg import Marker, MarkerArray
 
+from arm_common.gate import WAIT_FOR_NODES, SubscriberGate
 from arm_common.node import (
     ConfigError,
     Diagnostics,
@@ -62,6 +63,7 @@ VISUALIZER_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('publish_robot_description', 'bool', True,
               'Publish robot_description (false when robot_state_publisher does)',
               read_only=True),
+    WAIT_FOR_NODES,
 )
 
 #: Marker type of each :data:`arm_sim.markers.SHAPES` entry.
@@ -128,6 +130,7 @@ class VisualizerNode(Node):
         self.changed = False  # something to show since the last markers
         self.sent = 0
         self.markers_pub = self.create_publisher(MarkerArray, 'markers', 10)
+        self.gate = SubscriberGate(self, [self.markers_pub], p['wait_for_nodes'])
         if p['publish_robot_description']:
             # Latched as robot_state_publisher does: a display started later gets it.
             self.description_pub = self.create_publisher(String, 'robot_description',
@@ -217,6 +220,8 @@ class VisualizerNode(Node):
     def _publish(self) -> None:
         """The wall-clock throttle: send the markers if a message changed them."""
         if not self.changed or self.q is None:
+            return
+        if not self.gate.ready(self.diag, 'the first markers'):
             return
         self.changed = False
         try:

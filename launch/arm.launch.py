@@ -48,6 +48,7 @@ from launch_ros.parameter_descriptions import ParameterValue
 
 from arm_common.process import PARENT_ENV  # nodes die with the process that started them
 from arm_dynamics.timing import TIMING_MODES  # the one list of modes
+from arm_sim.launcher import recorder_gates  # first messages wait for the recorder
 from arm_sim.urdf_cli import urdf_for_params_file  # the URDF arm-sim urdf prints
 
 PACKAGE = 'arm_sim'
@@ -141,13 +142,24 @@ def _loop(context: LaunchContext) -> list[Node]:
     modes = timing_mode_arguments(timing_mode.perform(context))
     if composed.perform(context) == 'true':
         return [Node(package=PACKAGE, executable='composed', namespace=namespace,
-                     parameters=[params_file], ros_arguments=modes, remappings=CLOCK_REMAP,
-                     output='screen', additional_env=PARENT)]
+                     parameters=[params_file, *_gate(context, 'simulator')],
+                     ros_arguments=modes, remappings=CLOCK_REMAP, output='screen',
+                     additional_env=PARENT)]
     return [Node(package=PACKAGE, executable='simulator', name='simulator',
-                 namespace=namespace, parameters=[params_file, {'use_sim_time': False}],
+                 namespace=namespace, parameters=[params_file, {'use_sim_time': False},
+                                                  *_gate(context, 'simulator')],
                  ros_arguments=modes, remappings=CLOCK_REMAP, output='screen',
                  additional_env=PARENT),
-            _sim_time_node('controller')]
+            _sim_time_node('controller', parameters=_gate(context, 'controller'))]
+
+
+def _gate(context: LaunchContext, node: str) -> list[dict]:
+    """With ``record`` true, ``node`` sends nothing before the recorder has matched it, so
+    the bag holds its first messages (:func:`arm_sim.launcher.recorder_gates`)."""
+    if record.perform(context) != 'true':
+        return []
+    values = recorder_gates(params_file.perform(context)).get(node, {}).get(node)
+    return [values] if values else []
 
 
 def timing_mode_arguments(mode: str) -> list[str]:
@@ -198,7 +210,8 @@ def _visualizer(context: LaunchContext) -> list[Node]:
         return []
     rsp = 'true' in (robot_state_publisher.perform(context), rviz.perform(context))
     return [_sim_time_node('visualizer',
-                           parameters=[{'publish_robot_description': not rsp}])]
+                           parameters=[{'publish_robot_description': not rsp},
+                                       *_gate(context, 'visualizer')])]
 
 
 def _sim_time_node(executable: str, **kwargs) -> Node:

@@ -107,7 +107,8 @@ def visualization_nodes(module, **given: str) -> list:
 def loop_nodes(module, **given: str) -> list:
     """The nodes ``_loop`` starts (the simulator's process first) for launch arguments
     ``given`` (default: two processes, timing_mode empty)."""
-    context = {'composed': 'false', 'timing_mode': '', 'params_file': str(CONFIG), **given}
+    context = {'composed': 'false', 'timing_mode': '', 'params_file': str(CONFIG),
+               'record': 'true', **given}
     opaque = [a for a in module.generate_launch_description().args[0]
               if type(a).__name__ == 'OpaqueFunction'
               and a.kwargs['function'].__name__ == '_loop']
@@ -201,7 +202,7 @@ def arm_sim_nodes(module, **given: str) -> list:
     on): ``_loop``'s, the planner, the recorder and the visualizer."""
     context = {'composed': 'false', 'timing_mode': '', 'params_file': str(CONFIG),
                'rviz': 'false', 'robot_state_publisher': 'false', 'visualizer': 'true',
-               **given}
+               'record': 'true', **given}
     nodes = []
     for action in module.generate_launch_description().args[0]:
         if type(action).__name__ == 'OpaqueFunction':
@@ -239,3 +240,32 @@ def test_a_missing_optional_package_is_refused_before_any_node_starts(
         first.kwargs['function'](context)
     monkeypatch.setattr(sys.modules[__name__], 'INSTALLED', everything)
     assert first.kwargs['function'](context) == [], 'installed: nothing refused'
+
+
+def gate_of(node) -> list | None:
+    """The ``wait_for_nodes`` a launched node is given (None: not given)."""
+    values = [p['wait_for_nodes'] for p in node.kwargs.get('parameters', [])
+              if isinstance(p, dict) and 'wait_for_nodes' in p]
+    return values[-1] if values else None
+
+
+@pytest.mark.parametrize('composed', ['false', 'true'])
+def test_a_recorded_launch_holds_the_first_messages_until_the_recorder_matched_them(
+        launch_module, composed):
+    nodes = arm_sim_nodes(launch_module, composed=composed)
+    gated = {n.kwargs['executable'] for n in nodes if gate_of(n) == ['recorder']}
+    loop = {'composed'} if composed == 'true' else {'simulator', 'controller'}
+    assert gated == loop | {'visualizer'}
+    unrecorded = arm_sim_nodes(launch_module, composed=composed, record='false')
+    assert all(gate_of(n) is None for n in unrecorded), 'nothing to wait for'
+
+
+def test_a_recorder_that_leaves_a_stream_out_is_not_waited_for(launch_module, tmp_path):
+    import yaml
+    params = yaml.safe_load(CONFIG.read_text())
+    params['/**/recorder'] = {'ros__parameters': {'topics': ['joint_states', 'clock']}}
+    custom = tmp_path / 'arm.yaml'
+    custom.write_text(yaml.safe_dump(params))
+    nodes = arm_sim_nodes(launch_module, params_file=str(custom))
+    gated = {n.kwargs['executable'] for n in nodes if gate_of(n) == ['recorder']}
+    assert gated == {'simulator'}, 'the controller and visualizer would wait for nothing'
