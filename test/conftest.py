@@ -235,6 +235,16 @@ class Ros:
                 pytest.fail(f'timed out after {timeout:g} s waiting for {what}')
             self.executor.spin_once(timeout_sec=0.02)
 
+    def wait_matched(self, pub, nodes: list[str], timeout: float = 10.0) -> None:
+        """Wait until ``pub`` has matched the subscriptions of ``nodes`` (names) on its
+        topic, and every other one the graph lists: a publisher can count the lingering
+        endpoint of a node killed in an earlier test as a subscriber before the new one's
+        (:class:`arm_common.gate.SubscriberGate`, the nodes' own start-up gate)."""
+        from arm_common.gate import SubscriberGate
+
+        gate = SubscriberGate(self.node, [pub], nodes)
+        self.wait_for(gate.open, timeout, f'{", ".join(nodes)} to match {pub.topic_name}')
+
     #: s without a reply after which a request is sent again: rmw_fastrtps drops the reply
     #: to a client whose response reader the server has not matched yet ("failed to send
     #: response (timeout): client will not receive response"); seen once in 10 runs.

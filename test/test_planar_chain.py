@@ -253,7 +253,7 @@ def test_the_controllers_laws_regulate_a_3_link_arm_to_a_planned_goal(ros, launc
     ros.wait_for(lambda: any(s.message.startswith(('ready', 'last'))
                              for s in statuses(diags, '/planner', 'summary')),
                  timeout=30, what='the planner to hold a joint state')
-    ros.wait_for(lambda: goals.get_subscription_count() > 0, what='the planner to subscribe')
+    ros.wait_matched(goals, ['planner'])
     goal = np.array([0.5, 1.2])
     arm = robot_model(resolve_robot(THREE))
     kp = np.array(CHAIN_GAINS['gains.kp'])

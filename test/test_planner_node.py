@@ -66,7 +66,7 @@ def connect(ros, diags: list):
     """Goal publisher matched to the planner, planner outputs discovered, and the planner
     holding a joint state (its periodic /diagnostics summary says 'ready')."""
     goals = ros.publisher(PoseStamped, 'goal_pose')
-    ros.wait_for(lambda: goals.get_subscription_count() >= 1, 20, 'planner subscribing')
+    ros.wait_matched(goals, ['planner'], 20)
     ros.wait_for(lambda: ros.node.count_publishers('/' + TRAJECTORY) >= 1
                  and ros.node.count_publishers('/planner/path') >= 1, 10, 'planner outputs')
     return goals

@@ -60,7 +60,7 @@ def suite(launch, ros, mode: str, sim: dict | None = None):
     ros.wait_for(lambda: any(s.message.startswith(('ready', 'last'))
                              for s in statuses(diags, '/planner', 'summary')),
                  what='the planner ready')
-    ros.wait_for(lambda: goals.get_subscription_count() > 0, what='the planner to subscribe')
+    ros.wait_matched(goals, ['planner'])
     return diags, states, refs, trajs, goals
 
 
@@ -246,12 +246,16 @@ def bringup_run(ros, tmp_path, mode: str) -> tuple:
                                  for s in statuses(diags, '/planner', 'summary')),
                      what='the planner ready')
         goals = ros.publisher(PoseStamped, 'goal_pose')
-        ros.wait_for(lambda: goals.get_subscription_count() > 0, what='the planner')
+        ros.wait_matched(goals, ['planner'])
         before = accepted(diags)
         goals.publish(goal(*PF))
         ros.wait_for(lambda: accepted(diags) > before, timeout=30, what='the plan accepted')
         assert ros.set_params('/simulator', pause_at=6.0)[0].successful
         ros.wait_for(lambda: paused_at(6.0), timeout=90, what='the pause at t = 6 s')
+    except pytest.fail.Exception as exc:  # say what the nodes said
+        logs = '\n'.join(f'--- {f.name}\n' + f.read_text()[-3000:]
+                         for f in sorted((out / 'logs').glob('*.log')))
+        pytest.fail(f'{exc}\n{logs}')
     finally:
         proc.send_signal(signal.SIGTERM)
         text, _ = proc.communicate(timeout=60)

@@ -164,13 +164,14 @@ def test_full_disk_stops_recording_with_one_error_and_a_readable_bag(ros, launch
                                           'chunk_size': 4096})
         diags = ros.collect(DiagnosticArray, '/diagnostics')
         pub = ros.publisher(JointState, 'joint_states', qos=1000)
-        ros.wait_for(lambda: ros.node.count_subscribers('joint_states') >= 1, 20,
+        # Matched on our side (what we publish reaches it), not only seen in the graph.
+        ros.wait_for(lambda: pub.get_subscription_count() >= 1, 20,
                      'the recorder to subscribe')
         i = 0
 
         def fill():
             nonlocal i
-            for _ in range(50):
+            for _ in range(20):
                 pub.publish(state(i))
                 i += 1
             return not proc.alive()
@@ -185,7 +186,10 @@ def test_full_disk_stops_recording_with_one_error_and_a_readable_bag(ros, launch
                      5, 'ERROR on /diagnostics')
         bag = read_bag(mnt / 'bag')
         assert len(bag.joint_states) > 100
-        assert bag.warnings == [] and not bag.truncated, 'complete: summary and footer fit'
+        # Messages our flood lost on the way are counted, with a warning saying so (the
+        # recorder's books balance); any other warning is a bag not closed properly.
+        assert [w for w in bag.warnings if 'were lost before the recorder' not in w] == []
+        assert not bag.truncated, 'complete: summary and footer fit'
         assert not (mnt / 'bag' / RESERVE_NAME).exists()
         assert bag.joint_states.position[:, 0] == pytest.approx(
             0.001 * (bag.joint_states.stamp // 10_000_000))

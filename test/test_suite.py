@@ -55,7 +55,8 @@ def connect(ros, prefix: str = ''):
     ros.wait_for(lambda: any(s.message.startswith(('ready', 'last'))
                              for s in statuses(diags, planner, 'summary')),
                  what=f'{planner} ready')
-    ros.wait_for(lambda: goals.get_subscription_count() > 0 and ros.node.count_publishers(
+    ros.wait_matched(goals, [planner])
+    ros.wait_for(lambda: ros.node.count_publishers(
         f'{prefix}arm_controller/joint_trajectory') > 0, what='the planner')
     return states, trajs, goals
 

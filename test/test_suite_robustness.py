@@ -135,6 +135,40 @@ def inode(name: str) -> int | None:
         return None
 
 
+def why_kept(names) -> str:
+    """Who maps or has open each of ``names`` now, and whether its lock is held (what the
+    cleanup looks at), for a failure message."""
+    from arm_sim.launcher import _locked
+
+    said = []
+    for name in sorted(names):
+        holders = [f'{pid} {cmd}' for pid, cmd in holders_of(name)]
+        lock = ''
+        if name.endswith(('_el', '_sl')):
+            fd, busy = _locked(SHM / name)
+            if fd is not None:
+                os.close(fd)
+            lock = ' lock held' if busy else ' lock free'
+        said.append(f'{name}:{lock} held by {holders or "nobody"}')
+    return '; '.join(said)
+
+
+def holders_of(name: str) -> list[tuple[int, str]]:
+    found = []
+    for proc in Path('/proc').iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            maps = (proc / 'maps').read_text()
+            fds = [os.readlink(fd) for fd in (proc / 'fd').iterdir()]
+            if f'/dev/shm/{name}' in maps or f'/dev/shm/{name}' in fds:
+                cmd = (proc / 'cmdline').read_bytes().replace(b'\0', b' ')[:120]
+                found.append((int(proc.name), cmd.decode(errors='replace')))
+        except OSError:
+            continue
+    return found
+
+
 def shm_held_by_anyone() -> set[str]:
     return shm_held_by(int(p.name) for p in Path('/proc').iterdir() if p.name.isdigit())
 
@@ -226,7 +260,8 @@ def test_a_sigkilled_suite_leaves_no_shared_memory_behind_the_next_run(ros, tmp_
         second.wait_line(ros, 'stop with Ctrl-C')
         # Gone, or a new file of that name (a port number the new suite uses again).
         left = {f for f, ino in stale.items() if inode(f) == ino}
-        assert not left, f'stale shared memory left after the next run started: {sorted(left)}'
+        assert not left, (f'stale shared memory left after the next run started: '
+                          f'{sorted(left)}; {why_kept(left)}\n{second.output}')
         assert 'stale Fast DDS shared-memory file(s)' in second.output, second.output
         ros.wait_for(lambda: states and stamp_of(states[-1]) > 0.2, timeout=30,
                      what='the next suite to run')
