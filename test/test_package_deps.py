@@ -44,9 +44,26 @@ ROSDEP_KEYS = {
     'scipy': 'python3-scipy',
     'yaml': 'python3-yaml',
     'matplotlib': 'python3-matplotlib',  # arm_bag.plot: arm-sim analyze --plot, the demo
-    'zstandard': 'python3-zstandard',  # arm_bag.reader/writer: zstd-compressed MCAP chunks
-    'lz4': 'python3-lz4',  # arm_bag.reader/writer: lz4-compressed MCAP chunks
-    'mcap': 'python3-mcap',  # arm_bag.writer/recover: the mcap library (pip: mcap)
+    # The mcap library and its own pip requirements zstandard and lz4 have no rosdep keys
+    # (python3-mcap, python3-zstandard and python3-lz4 resolve to nothing, so `rosdep
+    # install` stopped); mcap-ros2-support's pip key installs all three.
+    'zstandard': 'mcap-ros2-support',  # arm_bag.reader/writer: zstd-compressed MCAP chunks
+    'lz4': 'mcap-ros2-support',  # arm_bag.reader/writer: lz4-compressed MCAP chunks
+    'mcap': 'mcap-ros2-support',  # arm_bag.writer/recover: the mcap library (pip: mcap)
+}
+
+#: The rosdep keys package.xml may use, as ros/rosdistro defines them at commit 8468e88
+#: (2026-08-22): rosdep/python.yaml and rosdep/base.yaml keys, and Jazzy packages
+#: (jazzy/distribution.yaml). A key not here would leave `rosdep install` unresolved.
+ROSDISTRO_KEYS = {
+    'python3-numpy', 'python3-scipy', 'python3-yaml', 'python3-matplotlib',
+    'mcap-ros2-support', 'python3-pytest', 'python3-hypothesis', 'python3-rosbags-pip',
+    'python3-yourdfpy-pip', 'python3-mujoco-pip',
+    # Jazzy packages
+    'rclpy', 'builtin_interfaces', 'std_msgs', 'std_srvs', 'sensor_msgs', 'geometry_msgs',
+    'trajectory_msgs', 'visualization_msgs', 'nav_msgs', 'diagnostic_msgs',
+    'rosgraph_msgs', 'rcl_interfaces', 'ament_index_python', 'launch', 'launch_ros',
+    'robot_state_publisher', 'rviz2', 'pinocchio',
 }
 
 #: Optional imports (a setup.py extra, imported only when asked for): no run dependency.
@@ -87,9 +104,15 @@ def third_party_imports() -> dict[str, set[str]]:
     return found
 
 
-def exec_depends() -> set[str]:
+def exec_depends(tags: tuple[str, ...] = ('exec_depend', 'depend')) -> set[str]:
     root = ET.parse(ROOT / 'package.xml').getroot()
-    return {e.text.strip() for e in root if e.tag in ('exec_depend', 'depend') and e.text}
+    return {e.text.strip() for e in root if e.tag in tags and e.text}
+
+
+def test_every_key_in_package_xml_is_one_rosdep_resolves():
+    keys = exec_depends(('exec_depend', 'depend', 'test_depend', 'build_depend'))
+    unknown = keys - ROSDISTRO_KEYS
+    assert not unknown, f'package.xml keys rosdistro does not define: {sorted(unknown)}'
 
 
 def test_every_package_is_walked():
