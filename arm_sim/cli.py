@@ -61,6 +61,17 @@ def _domain(args: argparse.Namespace, claim: bool = False) -> int:
     return domain
 
 
+def _live_view_available(args: argparse.Namespace) -> None:
+    """``--foxglove`` without foxglove-sdk: refused before anything starts (one line)."""
+    import importlib.util
+
+    from arm_sim.live import FOXGLOVE_MISSING
+
+    wanted = getattr(args, 'foxglove', None) is not None
+    if wanted and importlib.util.find_spec('foxglove') is None:
+        raise CliError(f'--foxglove: {FOXGLOVE_MISSING}')
+
+
 def _clean_shared_memory() -> None:
     """Remove the Fast DDS shared-memory files of processes that are gone (a suite killed
     with SIGKILL leaves its own), before this run adds its own."""
@@ -79,6 +90,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from arm_sim.client import SuiteError
     from arm_sim.demo import Demo, summary_table, timing_line
 
+    _live_view_available(args)
     domain = _domain(args, claim=True)
     out = Path(args.out) if args.out else Path('runs') / time.strftime('demo-%Y%m%d-%H%M%S')
     if out.exists():
@@ -120,6 +132,7 @@ def cmd_bringup(args: argparse.Namespace) -> int:
     from arm_planner.planner_node import FIRST_STATE
     from arm_sim.launcher import NodeProcess, config_file, recorder_gates
 
+    _live_view_available(args)
     domain = _domain(args, claim=True)
     params_file = Path(args.params_file) if args.params_file else config_file()
     if not params_file.is_file():

@@ -53,6 +53,9 @@ from arm_dynamics.urdf import link_frames
 
 #: The port Foxglove connects to by default (``ws://localhost:8765``).
 DEFAULT_PORT = 8765
+#: What the live view says when foxglove-sdk is missing (one line, no traceback).
+FOXGLOVE_MISSING = ("the live view needs foxglove-sdk, which is not installed: pip install "
+                    "'foxglove-sdk==0.30.3' (or the arm_sim extra: pip install -e '.[foxglove]')")
 #: WebSocket subprotocol of the Foxglove WebSocket protocol.
 SUBPROTOCOL = 'foxglove.websocket.v1'
 DESCRIPTION_TOPIC = 'robot_description'

@@ -56,6 +56,7 @@ from arm_dynamics.urdf import urdf_from_params
 from arm_sim.live import (
     DEFAULT_PORT,
     DESCRIPTION_TOPIC,
+    FOXGLOVE_MISSING,
     GOAL_TOPIC,
     TF_TOPIC,
     Bridge,
@@ -107,6 +108,8 @@ class LiveNode(Node):
         self.goal_topic = self.resolve_topic_name(GOAL_TOPIC)
         try:
             self.bridge = Bridge(p['host'], p['port'], goal_topic=self.goal_topic)
+        except ImportError:
+            raise ConfigError(FOXGLOVE_MISSING) from None
         except OSError as exc:
             raise ConfigError(str(exc)) from None
         self.sim_ns = 0

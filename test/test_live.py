@@ -535,3 +535,33 @@ def test_the_live_node_refuses_bad_stamps_frames_and_goals_and_keeps_serving(ros
     finally:
         client.close()
     assert live.alive(), live.output()[-3000:]
+
+
+# ---------------------------------------------------------------------- without foxglove-sdk
+HIDE_FOXGLOVE = "import sys; sys.modules['foxglove'] = None; "
+
+
+def test_bringup_with_foxglove_but_no_foxglove_sdk_is_refused_in_one_line_before_starting(
+        tmp_path):
+    out = tmp_path / 'run'
+    res = subprocess.run(
+        [sys.executable, '-c', HIDE_FOXGLOVE + 'from arm_sim.cli import main; '
+         f"sys.exit(main(['bringup', '--foxglove', '--out', {str(out)!r}]))"],
+        capture_output=True, text=True, timeout=60)
+    assert res.returncode != 0
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and 'foxglove-sdk' in lines[0] and 'pip install' in lines[0], (
+        res.stderr)
+    assert 'Traceback' not in res.stderr + res.stdout
+    assert not out.exists(), 'nothing started'
+
+
+def test_the_live_node_without_foxglove_sdk_says_how_to_install_it_without_a_traceback():
+    res = subprocess.run(
+        [sys.executable, '-c', HIDE_FOXGLOVE + 'from arm_sim.live_node import main; '
+         "sys.exit(main(['--ros-args', '-p', 'port:=0']))"],
+        capture_output=True, text=True, timeout=60, env=node_env())
+    assert res.returncode != 0
+    text = res.stdout + res.stderr
+    assert 'foxglove-sdk' in text and 'pip install' in text, text
+    assert 'Traceback' not in text, text
