@@ -840,6 +840,9 @@ def read_bag(path: str | Path, lean: bool = False) -> BagData:
     receive times, positions); its ``velocity`` and ``effort`` are then read-only NaN
     views that take no memory.
     """
+    sqlite_bag = _sqlite_files(path)
+    if sqlite_bag is not None:
+        return _read_sqlite(path, *sqlite_bag, lean)
     files, meta, warnings = mcap_files(path)
     bag = BagData(str(path), warnings=warnings)
     state = _recording_state(Path(path), files)
@@ -872,6 +875,67 @@ def read_bag(path: str | Path, lean: bool = False) -> BagData:
     for topic, n in sorted(bag.lost.items()):
         bag.warnings.append(f'{topic}: {n} messages were lost before the recorder (counted '
                             'by it from publisher sequence gaps and DDS loss events)')
+    _decode_topics(bag, per_topic, lean)
+    return bag
+
+
+def _sqlite_files(path: str | Path) -> tuple[list[Path], dict | None] | None:
+    """The ``.db3`` files and metadata of a rosbag2 sqlite3 bag at ``path`` (a directory or
+    a ``.db3`` file), or None if it is not one (:func:`arm_bag.sqlite.is_sqlite_bag`)."""
+    from arm_bag.sqlite import is_sqlite_bag
+
+    p = Path(path)
+    if not p.is_dir():
+        return ([p], None) if is_sqlite_bag(p, None) and regular_file(p) else None
+    meta = None
+    try:
+        import yaml
+        text = read_metadata_text(p / 'metadata.yaml')
+        doc = yaml.safe_load(text) if text else None
+        meta = doc['rosbag2_bagfile_information'] if isinstance(doc, dict) else None
+    except (BagError, OSError, UnicodeDecodeError, KeyError, TypeError, ValueError):
+        meta = None
+    storage = meta.get('storage_identifier') if isinstance(meta, dict) else None
+    if not is_sqlite_bag(p, storage if isinstance(storage, str) else None):
+        return None
+    named = meta.get('relative_file_paths') if isinstance(meta, dict) else None
+    files = ([p / str(f) for f in named if (p / str(f)).exists()]
+             if isinstance(named, list) else []) or sorted(p.glob('*.db3'))
+    if not files:
+        raise BagError(f'{path}: a sqlite3 bag without its .db3 file')
+    for f in files:
+        regular_file(f)
+    return files, meta
+
+
+def _read_sqlite(path: str | Path, files: list[Path], meta: dict | None,
+                 lean: bool) -> BagData:
+    """:func:`read_bag` for rosbag2's sqlite3 storage (:mod:`arm_bag.sqlite`): the same
+    decoding, from records laid out as MCAP's."""
+    from arm_bag.sqlite import read_db3
+
+    bag = BagData(str(path))
+    per_topic: dict[str, list] = {}
+    for f in files:
+        for t in read_db3(f):
+            n = len(t.offs)
+            old_type, count = bag.topics.get(t.name, (t.type_name, 0))
+            bag.topics[t.name] = (old_type, count + n)
+            bag.message_count += n
+            if t.serialization != 'cdr':
+                bag.warnings.append(f'{f.name}: {t.name} is {t.serialization!r}, not cdr: '
+                                    'skipped')
+            elif t.type_name == JOINT_STATE:
+                sink = _States(lean and _is_topic(t.name, REFERENCE_SUFFIX), n)
+                sink.add(t.buf, t.offs)
+                per_topic.setdefault(t.name, []).append(sink)
+            elif t.type_name in _COPIED:
+                per_topic.setdefault(t.name, []).append(_Raw(t.buf, t.offs))
+    if meta is not None:
+        expected = meta.get('message_count')
+        if isinstance(expected, int) and expected != bag.message_count:
+            bag.warnings.append(f'{path}: metadata.yaml counts {expected} messages, the '
+                                f'file holds {bag.message_count}')
     _decode_topics(bag, per_topic, lean)
     return bag
 
