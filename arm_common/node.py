@@ -40,6 +40,7 @@ from arm_common.params import (
     rcl_rule_value,
     relation_reasons,
     resolve,
+    walk_ros_args,
 )
 from arm_common.process import watch_parent
 from arm_common.throttle import Throttle
@@ -439,28 +440,18 @@ def rcl_arguments(argv: Sequence[str], specs: Iterable[ParamSpec] = ()) -> list[
     """
     table = {spec.name: spec for spec in specs}
     out: list[str] = []
-    in_ros_args = False
-    it = iter(argv)
-    for arg in it:
-        if arg == '--ros-args':
-            in_ros_args = True
-        elif arg == '--':
-            in_ros_args = False
-        elif in_ros_args and arg in ('-p', '--param'):
-            rule = next(it, None)
-            if rule is None or ':=' not in rule:
-                out += [arg] + ([rule] if rule is not None else [])
-                continue
-            target, text = rule.split(':=', 1)
-            value = rcl_rule_value(text)
-            if value is not None:
-                out += [arg, f'{target}:={value}']
-            continue
-        elif in_ros_args and arg == '--params-file':
-            path = next(it, None)
-            out += [arg] + ([_rcl_params_file(path, table)] if path is not None else [])
-            continue
-        out.append(arg)
+    for arg, value, flag in walk_ros_args(argv):
+        if not flag or value is None:
+            out.append(arg)
+        elif arg == '--params-file':
+            out += [arg, _rcl_params_file(value, table)]
+        elif ':=' not in value:
+            out += [arg, value]
+        else:
+            target, text = value.split(':=', 1)
+            rule = rcl_rule_value(text)
+            if rule is not None:
+                out += [arg, f'{target}:={rule}']
     return out
 
 

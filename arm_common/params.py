@@ -7,7 +7,7 @@ run time; :meth:`ParamSpec.check` returns the reason a value is refused, or None
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -231,6 +231,29 @@ def _is_int(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
 
+#: The ``--ros-args`` flags that take a value (the next argument).
+VALUE_FLAGS = ('-p', '--param', '--params-file')
+
+
+def walk_ros_args(argv: Sequence[str]) -> Iterator[tuple[str, str | None, bool]]:
+    """``argv`` one item at a time as ``(arg, value, flag)``: a ``-p``/``--param`` or
+    ``--params-file`` inside a ``--ros-args`` section (up to ``--``) comes with the argument
+    after it as ``value`` (None if ``argv`` ends there) and ``flag`` True; every other
+    argument alone, ``(arg, None, False)``. The one reading of rcl's command line that
+    :func:`command_line_parameters` and :func:`arm_common.node.rcl_arguments` share."""
+    in_ros_args = False
+    it = iter(argv)
+    for arg in it:
+        if arg == '--ros-args':
+            in_ros_args = True
+        elif arg == '--':
+            in_ros_args = False
+        elif in_ros_args and arg in VALUE_FLAGS:
+            yield arg, next(it, None), True
+            continue
+        yield arg, None, False
+
+
 def command_line_parameters(argv: Sequence[str], node_name: str,
                             fully_qualified_name: str) -> dict[str, Any]:
     """The ``-p [node:]name:=value`` rules in ``argv``'s ``--ros-args`` sections that apply
@@ -242,22 +265,12 @@ def command_line_parameters(argv: Sequence[str], node_name: str,
     a value typed on the command line is the one the user means.
     """
     rules: dict[str, Any] = {}
-    in_ros_args = False
-    it = iter(argv)
-    for arg in it:
-        if arg == '--ros-args':
-            in_ros_args = True
-        elif arg == '--':
-            in_ros_args = False
-        elif in_ros_args and arg in ('-p', '--param'):
-            rule = next(it, '')
-            if ':=' not in rule:
-                continue
+    for arg, rule, flag in walk_ros_args(argv):
+        if flag and arg != '--params-file' and rule is not None and ':=' in rule:
             target, text = rule.split(':=', 1)
             node, _, name = target.rpartition(':')
-            if node and node not in (node_name, fully_qualified_name):
-                continue
-            rules[name] = _yaml_value(text)
+            if not node or node in (node_name, fully_qualified_name):
+                rules[name] = _yaml_value(text)
     return rules
 
 
