@@ -1,9 +1,11 @@
 """``arm-sim analyze BAG...``: metrics of recorded runs (thin CLI over arm_bag.analysis);
+``arm-sim analyze BAG --frf``: the frequency response of a chirp run (arm_bag.frf);
 ``arm-sim bag recover BAG``: make a damaged or unfinished bag complete (arm_bag.recover).
 
 Exit codes: 0 every bag analysed / a complete bag written; 2 usage error; 3 a bag holds
-nothing analysable (no joint states); 4 a path is not a bag, is not a regular file (a FIFO,
-device or socket: refused naming its kind, never opened), is unreadable or damaged
+nothing analysable (no joint states; ``--frf``: no reference or no broadband excitation);
+4 a path is not a bag, is not a regular file (a FIFO, device or socket: refused naming its
+kind, never opened), is unreadable or damaged
 (``analyze``), or holds nothing recoverable (``bag recover``). Errors are one line on stderr;
 warnings (truncated bag, no metadata, default robot parameters, ...) are printed as
 ``warning: ...`` lines on stderr and never change the exit code.
@@ -32,14 +34,45 @@ def add_analyze_parser(subparsers) -> argparse.ArgumentParser:
         'analyze', help='metrics of recorded runs (bag directories or .mcap files)',
         description='Read rosbag2/MCAP bags recorded from arm_sim and print per-segment '
         'metrics (tracking error, settling time, overshoot, straight-line deviation, '
-        'torque, energy); several bags are compared side by side. Exit codes: 0 ok, '
+        'torque, energy); several bags are compared side by side; with --frf the frequency '
+        'response of a chirp run against the linearised loop. Exit codes: 0 ok, '
         '2 usage, 3 nothing analysable, 4 not a bag / unreadable.')
     p.add_argument('bags', nargs='+', metavar='BAG', help='bag directory or .mcap file')
     p.add_argument('--json', action='store_true',
                    help='print JSON (keys documented in arm_bag.analysis) instead of a table')
     p.add_argument('--plot', metavar='FILE.png', default=None,
                    help='also write a PNG: joint angles vs reference, torques, end-effector '
-                   'path vs line, deviation over time')
+                   'path vs line, deviation over time (with --frf: the Bode diagram)')
+    frf = p.add_argument_group(
+        'frequency response (--frf)',
+        'Estimate the closed-loop frequency response q / q_des of each excited joint '
+        'from a chirp or multi-sine run (planner mode chirp; docs/frf.md), with '
+        'coherence and the loop return ratio from the command, and compare it with the '
+        'linearised sampled-data loop (the control period\'s hold, --delay). Bags do not '
+        'record the controller\'s law and gains: give them here (defaults: the '
+        'controller\'s defaults). One bag; --plot writes the Bode diagram.')
+    frf.add_argument('--frf', action='store_true',
+                     help='frequency response instead of the metrics table')
+    frf.add_argument('--law', default='computed_torque', metavar='LAW',
+                     help='the controller\'s law during the run: ' + ', '.join(_frf_laws())
+                     + ' (default computed_torque, the controller\'s default)')
+    frf.add_argument('--kp', type=float, nargs='+', default=None, metavar='KP',
+                     help='gains.kp per joint [N m/rad; computed_torque 1/s^2] (default: '
+                     'the controller\'s, 100 60)')
+    frf.add_argument('--kd', type=float, nargs='+', default=None, metavar='KD',
+                     help='gains.kd per joint [N m s/rad; computed_torque 1/s] (default: '
+                     'the controller\'s, 20 12)')
+    frf.add_argument('--ki', type=float, nargs='+', default=None, metavar='KI',
+                     help='gains.ki per joint [N m/(rad s)], pid only (default 50 30)')
+    frf.add_argument('--delay', type=int, default=0, metavar='PERIODS',
+                     help='control periods between a state and the torque answering it '
+                     '(default 0: lockstep)')
+    frf.add_argument('--f-min', type=float, default=0.1, metavar='HZ',
+                     help='lowest frequency checked against the prediction [Hz] (default '
+                     '0.1)')
+    frf.add_argument('--f-max', type=float, default=None, metavar='HZ',
+                     help='highest frequency checked [Hz] (default: a third of the Nyquist '
+                     'rate, 16.7 Hz at 100 Hz)')
     p.add_argument('--dask', metavar='SCHEDULER_ADDRESS', default=None,
                    help='analyse the bags on a Dask distributed cluster (e.g. '
                    'tcp://10.0.0.5:8786; needs the dask extra; every worker must see the '
@@ -64,8 +97,63 @@ def analyze_one(path: str) -> tuple[str, object]:
         return 'unreadable', f'{path}: cannot read: {reason(exc)}'
 
 
+def _frf_laws() -> tuple[str, ...]:
+    from arm_control.closed_loop import LINEAR_LAWS
+
+    return LINEAR_LAWS
+
+
+def run_frf(args: argparse.Namespace) -> int:
+    """``analyze --frf``: one bag's frequency response; returns the exit code."""
+    from arm_bag.frf import FrfError, format_frf, frf_analysis
+    from arm_bag.reader import BagError
+    from arm_control.laws import Gains
+
+    def fail(message: str, code: int) -> int:
+        print(f'arm-sim analyze --frf: {message}', file=sys.stderr)
+        return code
+
+    if len(args.bags) != 1:
+        return fail(f'give one bag, got {len(args.bags)}', EXIT_USAGE)
+    if args.json or args.dask:
+        return fail('--json and --dask do not apply to --frf', EXIT_USAGE)
+    if args.law not in _frf_laws():
+        return fail(f"--law must be one of {', '.join(_frf_laws())}; got {args.law!r}",
+                    EXIT_USAGE)
+    if args.delay < 0:
+        return fail(f'--delay must be >= 0 periods, got {args.delay}', EXIT_USAGE)
+    given = {k: tuple(getattr(args, k)) for k in ('kp', 'kd', 'ki')
+             if getattr(args, k) is not None}
+    try:
+        gains = Gains(**given) if given else Gains()
+    except ValueError as exc:
+        return fail(f'gains: {reason(exc)}', EXIT_USAGE)
+    try:
+        rep = frf_analysis(args.bags[0], law=args.law, gains=gains, delay=args.delay,
+                           f_min=args.f_min, f_max=args.f_max)
+    except BagError as exc:
+        return fail(reason(exc), EXIT_UNREADABLE)
+    except (OSError, MemoryError) as exc:
+        return fail(f'{args.bags[0]}: cannot read: {reason(exc)}', EXIT_UNREADABLE)
+    except FrfError as exc:
+        return fail(reason(exc), EXIT_NOTHING)
+    for w in rep.warnings:
+        print(f'warning: {w}', file=sys.stderr)
+    print(format_frf(rep))
+    if args.plot:
+        from arm_bag.plot import plot_frf
+
+        try:
+            plot_frf(rep, args.plot)
+        except (OSError, ValueError) as exc:
+            return fail(f'cannot write plot {args.plot}: {reason(exc)}', EXIT_UNREADABLE)
+    return EXIT_OK
+
+
 def run_analyze(args: argparse.Namespace) -> int:
     """Run ``analyze``; returns the exit code (never raises for bad input)."""
+    if getattr(args, 'frf', False):
+        return run_frf(args)
     if getattr(args, 'dask', None):
         from arm_common.cluster import ClusterError, dask_map
 

@@ -59,3 +59,59 @@ def plot_report(reports: Report | list[Report], path: str | Path) -> Path:
     fig.savefig(out, dpi=100)
     plt.close(fig)
     return out
+
+
+def plot_frf(rep, path: str | Path) -> Path:
+    """Write the Bode diagram of an :class:`arm_bag.frf.FrfReport`: per excited joint (a
+    column) the closed-loop gain [dB] and phase [deg] of ``q / q_des`` against frequency
+    [Hz, log], measured (points, their shade the coherence: dark 1, pale 0) over the
+    prediction of the linearised sampled-data loop (line); the checked band shaded grey
+    outside; the predicted margins in the title."""
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    from arm_bag.frf import gain_db
+
+    cols = max(1, len(rep.joints))
+    fig, axes = plt.subplots(2, cols, figsize=(6.5 * cols, 7), sharex=True, squeeze=False)
+    lo, hi = rep.band
+    for c, jf in enumerate(rep.joints):
+        ax_g, ax_p = axes[0, c], axes[1, c]
+        f = jf.freqs
+        show = (f >= lo / 2) & (f <= rep.loop.nyquist) & jf.excited
+        meas_ph = np.degrees(np.unwrap(np.angle(jf.measured[show])))
+        pred_ph = np.degrees(np.unwrap(np.angle(jf.predicted[show])))
+        # the measured points: about 60 log-spaced bins (every bin would hide the line)
+        fs = f[show]
+        pick = np.unique(np.searchsorted(fs, np.geomspace(fs[0], fs[-1], 60))
+                         .clip(0, len(fs) - 1)) if len(fs) else np.zeros(0, int)
+        colour = plt.get_cmap('Blues')(0.3 + 0.7 * np.clip(jf.coherence[show][pick], 0, 1))
+        ax_g.plot(fs, gain_db(jf.predicted[show]), 'C3', lw=1.4,
+                  label='predicted (linearised sampled-data loop)', zorder=2)
+        ax_g.scatter(fs[pick], gain_db(jf.measured[show])[pick], s=14, c=colour,
+                     edgecolors='none', label='measured (shade: coherence, dark = 1)',
+                     zorder=3)
+        ax_p.plot(fs, pred_ph, 'C3', lw=1.4, zorder=2)
+        ax_p.scatter(fs[pick], meas_ph[pick], s=14, c=colour, edgecolors='none', zorder=3)
+        m = jf.margins
+        gm = 'inf' if not np.isfinite(m.gain_db) else f'{m.gain_db:.1f} dB'
+        pm = 'none' if not np.isfinite(m.phase_deg) else f'{m.phase_deg:.1f} deg'
+        ax_g.set_title(f'{jf.name}: q / q_des ({rep.law}, amplitude {jf.amplitude:.3g} rad)'
+                       f'\nworst {jf.worst_db:.2f} dB / {jf.worst_deg:.2f} deg in '
+                       f'{lo:g}..{hi:.3g} Hz; loop GM {gm}, PM {pm}', fontsize='medium')
+        for ax in (ax_g, ax_p):
+            ax.set_xscale('log')
+            ax.axvspan(f[show].min() if show.any() else lo / 2, lo, color='0.9', zorder=0)
+            ax.axvspan(hi, rep.loop.nyquist, color='0.9', zorder=0)
+            ax.grid(True, which='both', alpha=0.3)
+        ax_g.set_ylabel('gain [dB]')
+        ax_p.set_ylabel('phase [deg]')
+        ax_p.set_xlabel('frequency [Hz] (grey: outside the checked band)')
+        ax_g.legend(fontsize='small', loc='lower left')
+    fig.tight_layout()
+    out = Path(path)
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out

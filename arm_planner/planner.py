@@ -95,10 +95,11 @@ from arm_control.trajectory import Trajectory
 from arm_dynamics.limits import JointLimits
 from arm_dynamics.models import RobotModel, robot_model
 from arm_dynamics.two_link import TwoLinkArm
+from arm_planner.excitation import SWEEPS, ExcitationError, chirp
 from arm_planner.kinematics import PlanningError, check_point, nearest_equivalent, solve_ik
 from arm_planner.time_scaling import KINDS, TimeScaling, from_limits
 
-MODES = ('regulation', 'straight_line')
+MODES = ('regulation', 'straight_line', 'chirp')
 PROFILES = ('set_point', 'synchronized')
 FEASIBILITY = ('stretch', 'refuse')
 ELBOW_CHOICES = ('up', 'down', 'keep')
@@ -130,6 +131,7 @@ STOP_GROWTH = 1.25        # the path stop's duration search: x this per try, the
 #: the line by 6.3 mm; with the margin, 0.714 s, never, 5.4 mm). Gravity alone is never
 #: cut: a motion the limits can hold still fits, only slower.
 TRACKING_MARGIN = 0.2
+CHIRP_DWELL = 1.0         # s: held at the chirp's centre after moving there, to settle
 
 
 @dataclass(frozen=True)
@@ -216,7 +218,10 @@ class PlannerSettings:
     Units: ``duration`` s (0: derive from the speed limits), ``max_speed`` m/s,
     ``max_acceleration`` m/s^2, ``joint_max_velocity`` rad/s, ``joint_max_acceleration``
     rad/s^2, ``reach_margin`` m, ``singularity_margin`` on ``|sin q2|``, ``line_tolerance``
-    m. See the ``planner`` node's parameters for the meaning of each.
+    m. See the ``planner`` node's parameters for the meaning of each. ``chirp_*``: mode
+    chirp's excitation (:func:`plan_chirp`): amplitude rad (one value, or one per joint),
+    band ``f0``..``f1`` Hz, ``duration`` s, ``sweep``, the joints moved (indices; empty:
+    all) and ``period`` s, the control period the points are sampled on.
     """
 
     mode: str = 'regulation'
@@ -232,6 +237,13 @@ class PlannerSettings:
     reach_margin: float = 0.01
     singularity_margin: float = 0.1
     line_tolerance: float = LINE_TOLERANCE
+    chirp_amplitude: tuple[float, ...] = (0.001,)
+    chirp_f0: float = 0.05
+    chirp_f1: float = 17.0
+    chirp_duration: float = 40.0
+    chirp_sweep: str = 'log'
+    chirp_joints: tuple[int, ...] = ()
+    chirp_period: float = 0.01
 
 
 def make_arm(robot: dict) -> RobotModel:
@@ -296,6 +308,8 @@ def plan_goal(arm: RobotModel, effort_limits, q_current, goal,
                                profile=s.regulation_profile,
                                joint_max_velocity=s.joint_max_velocity,
                                joint_max_acceleration=s.joint_max_acceleration, **common)
+    if s.mode == 'chirp':
+        return plan_chirp(arm, effort_limits, q_current, goal, s, joint_limits)
     if s.mode == 'straight_line':
         return plan_straight_line(cast(TwoLinkArm, arm), effort_limits, q_current, goal,
                                   max_speed=s.max_speed,
@@ -1087,6 +1101,86 @@ def _fit_duration(terms, limits, requested: float, policy: str, q_grid,
     messages.append(f'stretched from {requested:.3f} s to {fitted:.3f} s: {what} '
                     f'(bisection to {STRETCH_TOLERANCE:.1%})')
     return fitted, requested
+
+
+# ---------------------------------------------------------------------- chirp
+def plan_chirp(arm: RobotModel, effort_limits, q_current, goal, s: PlannerSettings,
+               joint_limits: JointLimits | None = None) -> Plan:
+    """Mode chirp: excite the arm about the goal's configuration (the frequency response,
+    ``arm-sim analyze --frf``, docs/frf.md).
+
+    The goal's joint angles (as regulation finds them) are the centre. An arm not already
+    there is first moved there by a synchronized regulation profile and held
+    ``CHIRP_DWELL`` s; then :func:`arm_planner.excitation.chirp` runs, one trajectory point
+    every ``s.chirp_period`` s (positions, velocities and accelerations of the analytic
+    chirp: the controller's reference equals it exactly at each state), the last point at
+    the chirp's end, at rest at the centre. Refused (PlanningError naming the value) when
+    the chirp's parameters are invalid, its points would be more than ``MAX_POINTS``, it
+    leaves the joint limits, or the torque it needs (inverse dynamics of the planner's
+    model along it) exceeds the effort limits: the message names the largest amplitude
+    that fits, ``a * limit / peak``.
+    """
+    limits = _positive_pair('effort_limits', effort_limits, arm.n_dof)
+    move = plan_regulation(arm, limits, q_current, goal, elbow=s.elbow,
+                           profile='synchronized', time_scaling=s.time_scaling,
+                           duration=s.duration, joint_max_velocity=s.joint_max_velocity,
+                           joint_max_acceleration=s.joint_max_acceleration,
+                           feasibility=s.feasibility, reach_margin=s.reach_margin,
+                           singularity_margin=s.singularity_margin,
+                           joint_limits=joint_limits)
+    centre = move.q[-1]
+    offset = 0.0 if move.duration == 0.0 else move.duration + CHIRP_DWELL
+    _choice('chirp.sweep', s.chirp_sweep, SWEEPS)
+    times = chirp_times(s.chirp_duration, s.chirp_period)
+    if len(times) + len(move.times) > MAX_POINTS:
+        raise PlanningError(f'chirp.duration {s.chirp_duration:g} s at one point every '
+                            f'{s.chirp_period:g} s makes {len(times)} points > {MAX_POINTS}')
+    try:
+        q, qd, qdd = chirp(times, centre=centre, amplitude=np.asarray(s.chirp_amplitude),
+                           f0=s.chirp_f0, f1=s.chirp_f1, duration=s.chirp_duration,
+                           joints=list(s.chirp_joints) or None, sweep=s.chirp_sweep,
+                           period=s.chirp_period,
+                           lower=None if joint_limits is None else joint_limits.lower,
+                           upper=None if joint_limits is None else joint_limits.upper)
+    except ExcitationError as exc:
+        raise PlanningError(f'chirp: {exc}') from None
+    if joint_limits is not None:
+        fast = joint_limits.velocity_violation(qd)
+        if fast:
+            raise PlanningError(f'chirp: {fast}')
+    peak = np.abs(arm.inverse_dynamics(q, qd, qdd)).max(axis=0)
+    moved = np.abs(q - centre).max(axis=0)
+    if (peak > limits).any():
+        j = int(np.argmax(peak / limits))
+        scale = float((limits / peak).min())
+        raise PlanningError(
+            f'chirp: amplitude {_fmt(moved, 4)} rad up to {s.chirp_f1:g} Hz needs '
+            f'{peak[j]:.1f} N m at joint {j + 1} > effort limit {limits[j]:g} N m; about '
+            f'{_fmt(moved * scale, 4)} rad fits (or lower chirp.f1)')
+    note = (f'chirp {s.chirp_sweep} {s.chirp_f0:g} -> {s.chirp_f1:g} Hz over '
+            f'{s.chirp_duration:g} s, amplitude {_fmt(moved, 4)} rad about {_tuple(centre)} '
+            'rad')
+    if offset:
+        times = np.concatenate([move.times, offset + times])
+        q, qd, qdd = (np.vstack([a, b]) for a, b in ((move.q, q), (move.qd, qd),
+                                                     (move.qdd, qdd)))
+        peak = np.maximum(peak, move.peak_torque)
+        note += f', after moving there ({move.duration:.3f} s) and holding {CHIRP_DWELL:g} s'
+    jac = arm.jacobian(q)
+    return Plan(mode='chirp', profile='chirp', times=times, q=q, qd=qd, qdd=qdd,
+                ee_path=arm.forward_kinematics(q), duration=float(times[-1]),
+                peak_torque=peak, margin=limits - peak, stretched_from=None,
+                messages=(note,), elbow=move.elbow, ee_start=move.ee_start, goal=move.goal,
+                ee_velocity=np.einsum('kij,kj->ki', jac, qd),
+                ee_acceleration=np.einsum('kij,kj->ki', jac, qdd) + arm.jdot_qd(q, qd),
+                stop_duration=offset)
+
+
+def chirp_times(duration: float, period: float) -> np.ndarray:
+    """The chirp's point times [s from its start]: every ``period`` s, and ``duration``."""
+    count = int(math.floor(duration / period + 1e-9)) + 1
+    times = np.arange(count) * period
+    return times if times[-1] >= duration - 1e-12 else np.append(times, duration)
 
 
 def _finish(arm: RobotModel, limits, mode: str, profile: str, branch: str, ee_start, goal,

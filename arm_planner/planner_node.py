@@ -42,6 +42,7 @@ from arm_dynamics.limits import JointLimits
 from arm_dynamics.models import joint_count
 from arm_dynamics.robot import ROBOT_PARAMS
 from arm_dynamics.timing import parse_answer_tag
+from arm_planner.excitation import SWEEPS
 from arm_planner.kinematics import PlanningError
 from arm_planner.planner import (
     ELBOW_CHOICES,
@@ -70,7 +71,11 @@ Transient Local, still gets the current plan's path).
 
 mode regulation: the goal's joint angles as a set point, or a synchronized joint-space
 profile (regulation_profile). mode straight_line: the end effector moves on the segment
-from where it is to the goal. The predicted joint torques (inverse dynamics of the robot
+from where it is to the goal. mode chirp: the goal's joint angles are the centre of a
+frequency-response excitation (chirp.*): the arm is moved there first (synchronized, then
+held 1 s) unless already at rest there, then a sine sweep chirp.f0 -> chirp.f1 of
+chirp.amplitude runs, one point per chirp.period (arm-sim analyze --frf reads the run;
+docs/frf.md). The predicted joint torques (inverse dynamics of the robot
 parameters) are checked against effort_limits: too fast a plan is slowed down to the
 fastest duration that fits (feasibility stretch) or refused (feasibility refuse).
 Unreachable or near-singular goals, goals in another frame and non-finite goals are
@@ -133,6 +138,28 @@ PLANNER_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('singularity_margin', 'double', 0.1,
               'Minimum |sin q2| at the goal and along a straight line', '', minimum=0.0,
               maximum=0.99),
+    ParamSpec('chirp.amplitude', 'doubles', [0.001],
+              'Mode chirp: peak deviation of each moved joint from the goal configuration, '
+              'one value for all or one per joint (the planner refuses one whose torque '
+              'up to chirp.f1 exceeds effort_limits, naming the largest that fits)', 'rad',
+              minimum=0.0, strict_min=True, maximum=3.2),
+    ParamSpec('chirp.f0', 'double', 0.05, 'Mode chirp: the sweep\'s start frequency', 'Hz',
+              minimum=0.0, strict_min=True, maximum=1000.0),
+    ParamSpec('chirp.f1', 'double', 17.0,
+              'Mode chirp: the sweep\'s end frequency, above chirp.f0 and below the Nyquist '
+              'rate of chirp.period', 'Hz', minimum=0.0, strict_min=True, maximum=1000.0),
+    ParamSpec('chirp.duration', 'double', 40.0,
+              'Mode chirp: the sweep\'s duration (a 5% fade in and out included); at least '
+              'one period of chirp.f0', 's', minimum=0.0, strict_min=True, maximum=190.0),
+    ParamSpec('chirp.sweep', 'string', 'log',
+              'Mode chirp: log (equal time per octave) or linear frequency sweep',
+              choices=SWEEPS),
+    ParamSpec('chirp.joints', 'strings', [],
+              'Mode chirp: the joints that move (names); empty = all', allow_empty=True),
+    ParamSpec('chirp.period', 'double', 0.01,
+              'Mode chirp: one trajectory point every this (the control period: the '
+              "simulator's 1 / publish_rate), so the reference is the chirp at each state",
+              's', minimum=0.0, strict_min=True, maximum=1.0),
     ParamSpec('base_frame', 'string', 'base_link',
               'Frame of goals (an empty frame_id means this one) and of planner/path'),
     ParamSpec('hold_service', 'string', 'simulator/hold',
@@ -151,10 +178,19 @@ FAULT_SUMMARIES = ('runaway', 'integration diverged')
 
 def settings_from(params: dict[str, Any]) -> PlannerSettings:
     """The pure planner's settings from node parameter values."""
+    params = {k.replace('.', '_'): v for k, v in params.items()}
     names = [f for f in PlannerSettings.__dataclass_fields__ if f in params]
     values: dict[str, Any] = {n: (float(params[n]) if isinstance(params[n], int)
                                   and not isinstance(params[n], bool) else params[n])
                               for n in names}
+    if 'chirp_amplitude' in values:
+        values['chirp_amplitude'] = tuple(float(a) for a in values['chirp_amplitude'])
+    if 'chirp_joints' in values:  # names -> indices (ValueError naming an unknown one)
+        joints = list(params.get('joint_names', ()))
+        unknown = [j for j in values['chirp_joints'] if j not in joints]
+        if unknown:
+            raise ValueError(f'chirp.joints {unknown} are not joints of this arm ({joints})')
+        values['chirp_joints'] = tuple(joints.index(j) for j in values['chirp_joints'])
     return PlannerSettings(**values)
 
 

@@ -337,3 +337,33 @@ def test_a_goal_at_or_millimetres_from_the_arm_is_accepted_at_once(timing_mode, 
         assert not any(m.startswith('refused') for m in got), (offset, got)
         assert not diag_texts(diags, 'goal_refused_by_controller'), offset
         assert len(diag_texts(diags, 'plan_sent')) > k
+
+
+def test_chirp_mode_sends_the_chirp_at_every_control_period(ros, launch, joint_feed):
+    """mode chirp, goal at the arm's tip at rest: one trajectory whose points, one every
+    chirp.period from 0 to chirp.duration, carry excitation.chirp's positions, velocities
+    and accelerations about the goal's angles (to 1e-12)."""
+    from arm_planner.excitation import chirp
+
+    launch('planner', params={'mode': 'chirp', 'chirp.duration': 3.0, 'chirp.f0': 1.0,
+                              'chirp.f1': 17.0, 'chirp.joints': ['joint2'],
+                              'chirp.amplitude': [0.002]})
+    trajs = ros.collect(JointTrajectory, TRAJECTORY)
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    goals = connect(ros, diags)
+    joint_feed['q'] = Q0
+    wait_ready(ros, diags)
+    goals.publish(goal_msg(*ARM.forward_kinematics(np.array(Q0))))
+    ros.wait_for(lambda: trajs, 10, 'the chirp trajectory')
+    pts = trajs[0].points
+    times = np.array([seconds(p.time_from_start) for p in pts])
+    assert len(pts) == 301 and np.abs(times - np.arange(301) * 0.01).max() < 1e-9
+    centre = np.array(pts[0].positions)
+    assert centre == pytest.approx(Q0, abs=1e-9)
+    q, qd, qdd = chirp(times, centre=centre, amplitude=0.002, f0=1.0, f1=17.0,
+                       duration=3.0, joints=[1], period=0.01)
+    for got, want in ((np.array([p.positions for p in pts]), q),
+                      (np.array([p.velocities for p in pts]), qd),
+                      (np.array([p.accelerations for p in pts]), qdd)):
+        assert np.abs(got - want).max() <= 1e-12 * max(1.0, np.abs(want).max())
+    assert not np.ptp(q[:, 0]) and np.ptp(q[:, 1]) > 0.003
