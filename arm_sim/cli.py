@@ -1,7 +1,7 @@
 """``arm-sim``: the terminal front end of arm_sim (works in a plain venv, no ros2 CLI).
 
-Sub-commands: ``demo``, ``bringup``, ``goal``, ``analyze``. Errors are one line on stderr
-and a non-zero exit code, never a traceback.
+Sub-commands: ``demo``, ``bringup``, ``goal``, ``analyze``, ``bag``, ``sweep``, ``identify``,
+``urdf``. Errors are one line on stderr and a non-zero exit code, never a traceback.
 """
 
 from __future__ import annotations
@@ -410,6 +410,8 @@ def cmd_goal(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from arm_planner.planner import MODES as PLANNER_MODES
+
     parser = argparse.ArgumentParser(
         prog='arm-sim', description='arm_sim: a simulated 2-R robot arm on ROS 2 Jazzy. '
         'Runs the nodes as processes; no ros2 command line needed.')
@@ -497,8 +499,9 @@ def build_parser() -> argparse.ArgumentParser:
         'refused with the reason (exit 3) or timed out (exit 4).')
     goal.add_argument('x', type=float, help='goal x [m]')
     goal.add_argument('y', type=float, help='goal y [m]')
-    goal.add_argument('--mode', choices=('regulation', 'straight_line'), default=None,
-                      help="set the planner's mode first (default: keep it)")
+    goal.add_argument('--mode', choices=PLANNER_MODES, default=None,
+                      help="set the planner's mode first (default: keep it); chirp: a small "
+                      'sine sweep about the goal, for arm-sim analyze --frf (docs/frf.md)')
     goal.add_argument('--duration', type=float, default=None,
                       help='set the motion duration [s] first (0 = from speed limits)')
     goal.add_argument('--frame', default='base_link', help='goal frame_id (default base_link)')
@@ -515,9 +518,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_analyze_parser(sub)
     add_bag_parser(sub)
+    from arm_sim.identify_cli import add_identify_parser
     from arm_sim.sweep import add_sweep_parser
 
     add_sweep_parser(sub)
+    add_identify_parser(sub)
     from arm_sim.urdf_cli import add_urdf_parser
 
     add_urdf_parser(sub)
