@@ -17,6 +17,12 @@ Per segment:
 * tracking error = joint position minus reference: the ``arm_controller/reference``
   position with the same header stamp, or, with no reference topic, the trajectory's last
   point (the set point).
+* which state: with ``simulator/true_joint_states`` in the bag (a simulator with sensor
+  effects on publishes the true state beside the measured ``joint_states``, same stamps),
+  every figure of the joint positions (tracking error, settling, overshoot, the tip's line
+  deviation, energy) is computed on the true positions matched by stamp; without it, or
+  if it misses a state's stamp (a warning says so), on ``joint_states``. The report says
+  which (``state_source``). Torques are ``joint_states`` efforts either way.
 * regulation: settling time (2% band of the step from the first position of the segment
   to the set point, per joint and overall = the largest) and overshoot (% of the step).
 * straight_line: the end effector (forward kinematics of the recorded positions, link
@@ -38,7 +44,8 @@ per-joint values are lists in ``joint_names`` order.
 
 * ``bag`` (str), ``joint_names`` [str], ``robot_source`` ("bag" | "defaults"),
   ``link_lengths`` [m], ``effort_limits`` [N m], ``message_counts`` {topic: count},
-  ``truncated`` (bool), ``warnings`` [str]
+  ``truncated`` (bool), ``warnings`` [str], ``state_source`` ("true_joint_states" when
+  the figures are computed on the true positions; absent: on ``joint_states``)
 * ``run``: ``duration`` s, ``samples``, ``torque_peak`` / ``torque_rms`` [N m per joint],
   ``saturated_fraction`` [per joint], ``energy`` J
 * ``segments``: list of
@@ -116,10 +123,14 @@ class Report:
     warnings: list[str]
     run: dict
     segments: list[Segment]
+    #: The topic whose positions the figures use: 'true_joint_states' or 'joint_states'.
+    state_source: str = 'joint_states'
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary (keys documented in the module docstring)."""
         out = {k: v for k, v in asdict(self).items() if k != 'segments'}
+        if self.state_source == 'joint_states':
+            del out['state_source']  # implied: reports of bags without true states unchanged
         out['segments'] = [seg.to_dict() for seg in self.segments]
         return _clean(out)
 
@@ -219,6 +230,9 @@ def analyze_data(bag: BagData) -> Report:
     if js is None or len(js) == 0:
         raise NothingToAnalyse(f'{bag.path}: no joint_states messages (topics: '
                                + (', '.join(sorted(bag.topics)) or 'none') + ')')
+    true = _true_state(bag, js, warnings)
+    state_source = 'joint_states' if true is None else 'true_joint_states'
+    js = js if true is None else true
     joints = len(js.names)
     source, lengths, limits = _robot(bag, warnings, joints)
     arm = _kinematics(bag, lengths, joints, warnings)
@@ -257,7 +271,32 @@ def analyze_data(bag: BagData) -> Report:
                   link_lengths=lengths, effort_limits=limits,
                   message_counts={k: v[1] for k, v in sorted(bag.topics.items())},
                   truncated=bag.truncated, warnings=warnings, run=_clean(run),
-                  segments=segments)
+                  segments=segments, state_source=state_source)
+
+
+def _true_state(bag: BagData, js: JointStates, warnings: list[str]) -> JointStates | None:
+    """``js`` with the true positions (``simulator/true_joint_states``, matched by stamp;
+    a re-sent stamp's first) in place of the measured ones; None without true states, or
+    when they do not cover every state of ``js`` (a warning says so)."""
+    tr = bag.true_joint_states
+    if tr is None or len(tr) == 0:
+        return None
+    if tr.names != js.names:
+        warnings.append(f'{tr.topic}: joint names {list(tr.names)} differ from '
+                        f'{list(js.names)}; figures from {js.topic}')
+        return None
+    order = np.argsort(tr.stamp, kind='stable')
+    st, pos = tr.stamp[order], tr.position[order]
+    first = np.r_[True, st[1:] != st[:-1]]
+    st, pos = st[first], pos[first]
+    i = np.clip(np.searchsorted(st, js.stamp), 0, len(st) - 1)
+    hit = st[i] == js.stamp
+    if not hit.all():
+        warnings.append(f'{tr.topic}: no true state for {int((~hit).sum())} of {len(js)} '
+                        f'joint states; figures from the measured {js.topic}')
+        return None
+    return JointStates(js.topic, js.names, js.stamp, js.log_time, pos[i], js.velocity,
+                       js.effort)
 
 
 def _valid_trajectories(trajs, warnings: list[str]) -> list:

@@ -139,6 +139,9 @@ class BagData:
     topics: dict[str, tuple[str, int]] = field(default_factory=dict)
     joint_states: JointStates | None = None
     reference: JointStates | None = None
+    #: ``simulator/true_joint_states``: the true state beside the measured ``joint_states``
+    #: (a simulator with sensor or actuator effects on); None when the bag has none.
+    true_joint_states: JointStates | None = None
     trajectories: list[TrajectoryMsg] = field(default_factory=list)
     paths: list[PathMsg] = field(default_factory=list)
     goals: list[GoalMsg] = field(default_factory=list)
@@ -680,6 +683,12 @@ def _why(exc: BaseException) -> str:
 
 
 REFERENCE_SUFFIX = 'arm_controller/reference'
+TRUE_STATE_SUFFIX = 'simulator/true_joint_states'
+
+
+def _positions_only(topic: str) -> bool:
+    """Lean reading keeps only the positions of these JointState topics."""
+    return _is_topic(topic, REFERENCE_SUFFIX) or _is_topic(topic, TRUE_STATE_SUFFIX)
 _COPIED = (TRAJECTORY, PATH, POSE_STAMPED)  # message types kept as bytes until the end
 
 
@@ -790,7 +799,7 @@ class _Collector:
     is read: JointStates decoded at once into :class:`_States`, trajectories, paths, goals
     and messages of channels not defined yet copied (:class:`_Raw`); other types only
     counted. ``lean``: keep only stamps, receive times and positions of the reference
-    topic (what :mod:`arm_bag.analysis` uses)."""
+    and true-state topics (what :mod:`arm_bag.analysis` uses)."""
 
     def __init__(self, lean: bool) -> None:
         self.lean = lean
@@ -815,7 +824,7 @@ class _Collector:
         sink = self.states.get(ch)
         if sink is None:
             sink = self.states[ch] = _States(
-                self.lean and _is_topic(c.topic, REFERENCE_SUFFIX), capacity)
+                self.lean and _positions_only(c.topic), capacity)
             for raw in self.parts.pop(ch, []):  # read before its channel was defined
                 sink.add(raw.buf, raw.offs)
         return sink
@@ -833,12 +842,13 @@ def read_bag(path: str | Path, lean: bool = False) -> BagData:
 
     Topics are chosen by type and name suffix, so namespaced runs (``/arm2/joint_states``)
     and foreign bags with a ``joint_states`` topic work: ``joint_states`` and
-    ``arm_controller/reference`` (JointState), ``joint_trajectory`` (JointTrajectory),
-    ``planner/path`` (Path), ``goal_pose`` (PoseStamped).
+    ``arm_controller/reference`` (JointState), ``simulator/true_joint_states``
+    (JointState, :attr:`BagData.true_joint_states`), ``joint_trajectory``
+    (JointTrajectory), ``planner/path`` (Path), ``goal_pose`` (PoseStamped).
 
-    ``lean``: of the reference topic keep only what :mod:`arm_bag.analysis` uses (stamps,
-    receive times, positions); its ``velocity`` and ``effort`` are then read-only NaN
-    views that take no memory.
+    ``lean``: of the reference and true-state topics keep only what
+    :mod:`arm_bag.analysis` uses (stamps, receive times, positions); their ``velocity``
+    and ``effort`` are then read-only NaN views that take no memory.
     """
     sqlite_bag = _sqlite_files(path)
     if sqlite_bag is not None:
@@ -926,7 +936,7 @@ def _read_sqlite(path: str | Path, files: list[Path], meta: dict | None,
                 bag.warnings.append(f'{f.name}: {t.name} is {t.serialization!r}, not cdr: '
                                     'skipped')
             elif t.type_name == JOINT_STATE:
-                sink = _States(lean and _is_topic(t.name, REFERENCE_SUFFIX), n)
+                sink = _States(lean and _positions_only(t.name), n)
                 sink.add(t.buf, t.offs)
                 per_topic.setdefault(t.name, []).append(sink)
             elif t.type_name in _COPIED:
@@ -1107,6 +1117,9 @@ def _decode_topics(bag: BagData, per_topic: dict[str, list], lean: bool = False)
     ref = _pick(bag, JOINT_STATE, REFERENCE_SUFFIX)
     if ref and ref in per_topic:
         bag.reference = _joint_states(bag, ref, per_topic.pop(ref))
+    true = _pick(bag, JOINT_STATE, TRUE_STATE_SUFFIX)
+    if true and true in per_topic:
+        bag.true_joint_states = _joint_states(bag, true, per_topic.pop(true))
     decoders = (('joint_trajectory', TRAJECTORY, decode_joint_trajectory,
                  lambda t, m: bag.trajectories.append(TrajectoryMsg(t, m))),
                 ('planner/path', PATH, decode_path,

@@ -38,6 +38,8 @@ def format_table(reports: list[Report]) -> str:
     rows.append(['run duration [s]'] + [f"{r.run['duration']:.3f}" for r in reports])
     rows.append(['run energy [J]'] + [_fmt(r.run['energy'], '.3f') for r in reports])
     rows.append(['robot parameters'] + [r.robot_source for r in reports])
+    if any(r.state_source != 'joint_states' for r in reports):  # a noisy or delayed arm
+        rows.append(['positions from'] + [r.state_source for r in reports])
     for k in range(n_seg):
         rows.append([f'-- segment {k}'] + [''] * len(reports))
         for label, attr, fmt in _ROWS:

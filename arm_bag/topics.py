@@ -3,6 +3,9 @@
 #: The suite's topics (relative to the recorder's namespace; '/x' absolute) and types.
 KNOWN_TOPICS = {
     'joint_states': 'sensor_msgs/msg/JointState',
+    # The true state beside the measured joint_states (published only with sensor or
+    # actuator effects on: the simulator's position_noise, ..., actuation_delay).
+    'simulator/true_joint_states': 'sensor_msgs/msg/JointState',
     'effort_controller/commands': 'std_msgs/msg/Float64MultiArray',
     'arm_controller/reference': 'sensor_msgs/msg/JointState',
     'arm_controller/joint_trajectory': 'trajectory_msgs/msg/JointTrajectory',

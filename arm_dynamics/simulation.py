@@ -21,6 +21,7 @@ import numpy as np
 from arm_dynamics.integrate import Model
 from arm_dynamics.limits import JointLimits
 from arm_dynamics.models import geared_link, robot_model
+from arm_dynamics.sensors import ActuationDelay, SensorModel
 
 
 class CommandError(ValueError):
@@ -68,12 +69,23 @@ class SimulatorCore:
         stops there (checked after every physics step: position put back on the limit,
         outward velocity removed).
     envelope : beyond this a state is a runaway fault (None: no envelope).
+    sensors : the measurement of each new state (:class:`~arm_dynamics.sensors.
+        SensorModel`, over the model's state (n,)); None: ideal, :meth:`joint_view` shows
+        the true state.
+    actuation_delay : int, control periods >= 0 -- the command held for a period is
+        applied ``actuation_delay`` periods later (:class:`~arm_dynamics.sensors.
+        ActuationDelay`; zero torque before); 0: at once.
+
+    :meth:`joint_view` is the measurement (what the node publishes on ``joint_states``),
+    :meth:`true_view` the true state; each state is measured once, when it is reached
+    (:meth:`advance`, :meth:`reset`), so a re-sent state carries the same measurement.
     """
 
     def __init__(self, model: Model, *, q0, qd0, effort_limits, physics_step_ns: int,
                  control_period_ns: int, velocity_limit: float,
                  joint_names: Sequence[str], joint_limits: JointLimits | None = None,
-                 hard_stops: bool = False, envelope: JointLimits | None = None) -> None:
+                 hard_stops: bool = False, envelope: JointLimits | None = None,
+                 sensors: SensorModel | None = None, actuation_delay: int = 0) -> None:
         n = model.n_dof
         if physics_step_ns <= 0 or control_period_ns % physics_step_ns:
             raise ValueError(
@@ -92,6 +104,11 @@ class SimulatorCore:
         self.joint_limits = joint_limits
         self.hard_stops = hard_stops and joint_limits is not None
         self.envelope = envelope
+        self.sensors = sensors if sensors is not None and sensors.enabled else None
+        if self.sensors is not None and self.sensors.n != n:
+            raise ValueError(f'the sensor model measures {self.sensors.n} joints, the model '
+                             f'has {n}')
+        self.actuator = ActuationDelay(n, actuation_delay)
         self.time_ns = 0
         self.reset()
 
@@ -102,6 +119,15 @@ class SimulatorCore:
         self.command = np.zeros(self.n)
         self.applied = np.zeros(self.n)
         self.diverged: str | None = None
+        self.actuator.clear()
+        if self.sensors is not None:
+            self.sensors.reset()
+        self._sense()
+
+    def _sense(self) -> None:
+        """Measure the state just reached (once per state)."""
+        if self.sensors is not None:
+            self.measured = self.sensors.measure(self.q, self.qd)
 
     def set_command(self, data: Sequence[float]) -> None:
         """Hold a new effort command [N m]; raises :class:`CommandError` and keeps the old
@@ -109,8 +135,10 @@ class SimulatorCore:
         self.command = validate_command(data, self.n)
 
     def clear_command(self) -> None:
-        """Zero torque (real_time command watchdog)."""
+        """Zero torque (wall_clock command watchdog), the commands queued by an actuation
+        delay included."""
         self.command = np.zeros(self.n)
+        self.actuator.clear()
 
     @property
     def saturated(self) -> np.ndarray:
@@ -123,12 +151,19 @@ class SimulatorCore:
         return self.time_ns * 1e-9
 
     def advance(self) -> None:
-        """Integrate one control period with the held, saturated command."""
+        """Integrate one control period with the held, saturated command (with an
+        actuation delay: the one held ``actuation_delay`` periods ago), then measure the
+        new state."""
+        self._integrate()
+        self._sense()
+
+    def _integrate(self) -> None:
         self.time_ns += self.period_ns
+        command = self.actuator(self.command)
         if self.diverged:
             self.applied = np.zeros(self.n)
             return
-        self.applied = np.clip(self.command, -self.limits, self.limits)
+        self.applied = np.clip(command, -self.limits, self.limits)
         with np.errstate(all='ignore'):
             if self.hard_stops and self.joint_limits is not None:
                 q, qd = self.q, self.qd
@@ -170,10 +205,20 @@ class SimulatorCore:
         return self.joint_limits.violation(self.q, self.qd)
 
     def joint_view(self) -> JointView:
-        """Positions [rad], velocities [rad/s] and applied efforts [N m] to publish: the
-        model's own view of its state when it has one (:meth:`SingleLinkGeared.joint_view`
-        shows motor shaft and link), else one entry per joint."""
-        q, qd, tau = self.q.tolist(), self.qd.tolist(), self.applied.tolist()
+        """Positions [rad], velocities [rad/s] and applied efforts [N m] to publish on
+        ``joint_states``: the measured state (the true one without sensors) in the model's
+        own view of its state when it has one (:meth:`SingleLinkGeared.joint_view` shows
+        motor shaft and link), else one entry per joint."""
+        if self.sensors is None:
+            return self._view(self.q, self.qd)
+        return self._view(*self.measured)
+
+    def true_view(self) -> JointView:
+        """:meth:`joint_view` of the true state (``simulator/true_joint_states``)."""
+        return self._view(self.q, self.qd)
+
+    def _view(self, q_: np.ndarray, qd_: np.ndarray) -> JointView:
+        q, qd, tau = q_.tolist(), qd_.tolist(), self.applied.tolist()
         view = getattr(self.model, 'joint_view', None)
         if view is not None:
             return JointView(*view(self.joint_names, q, qd, tau))

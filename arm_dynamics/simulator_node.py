@@ -34,6 +34,7 @@ from arm_common.params import ParamSpec
 from arm_dynamics.limits import JointLimits
 from arm_dynamics.models import joint_count
 from arm_dynamics.robot import ROBOT_PARAMS
+from arm_dynamics.sensors import SensorModel, whole_counts_reason
 from arm_dynamics.simulation import (
     CommandError,
     SimulatorCore,
@@ -76,6 +77,11 @@ bit) or wall_clock (opt-in: periods integrated on the wall clock's schedule with
 command is held then: the results depend on the machine). A silent controller makes time
 stand still and is reported, never replaced by zero torque (except in wall_clock).
 Simulated time is the only time that changes the physics.
+
+Sensors and actuators (all off by default): joint_states is the measurement (noise,
+encoder counts, sensing_delay, drawn from noise_seed) and the command acts
+actuation_delay periods late; with any of them on, simulator/true_joint_states
+(sensor_msgs/JointState, same stamp) carries the true state.
 '''
 
 SIM_PARAMS: tuple[ParamSpec, ...] = (
@@ -129,6 +135,34 @@ SIM_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('fault_velocity_factor', 'double', 2.0,
               'Runaway envelope: a joint faster than this times its speed limit is a fault',
               '', minimum=1.0, maximum=1000.0, read_only=True),
+    ParamSpec('position_noise', 'doubles', [0.0, 0.0],
+              'Sensors: standard deviation of the Gaussian noise on each measured joint '
+              'position (joint_states; simulator/true_joint_states has the true state; '
+              'single_link_geared: first value, on the motor shaft); 0 = none', 'rad',
+              minimum=0.0, maximum=10.0, per_joint=True, fill=0.0, read_only=True),
+    ParamSpec('velocity_noise', 'doubles', [0.0, 0.0],
+              'Sensors: standard deviation of the Gaussian noise on each measured joint '
+              'velocity; 0 = none', 'rad/s', minimum=0.0, maximum=1000.0, per_joint=True,
+              fill=0.0, read_only=True),
+    ParamSpec('encoder_resolution', 'doubles', [0.0, 0.0],
+              'Sensors: encoder counts per revolution of each joint (whole numbers): the '
+              'measured position is rounded to the nearest count, 2 pi/counts rad; '
+              '0 = ideal', 'counts/rev', minimum=0.0, maximum=1e9, per_joint=True, fill=0.0,
+              read_only=True,
+              relation=lambda v: whole_counts_reason(v['encoder_resolution'])),
+    ParamSpec('sensing_delay', 'int', 0,
+              'Sensors: the state published at t_j is the measurement of the state at '
+              't_(j-k), k whole control periods (before that: the first state measured)',
+              'periods', minimum=0, maximum=1000, read_only=True),
+    ParamSpec('actuation_delay', 'int', 0,
+              'Actuators: the command answering the state at t_j is applied over '
+              '[t_(j+k), t_(j+k+1)], k whole control periods (zero torque before); the '
+              'lockstep hand-shake is unchanged', 'periods', minimum=0, maximum=1000,
+              read_only=True),
+    ParamSpec('noise_seed', 'int', 0,
+              'Sensors: seed of the noise generator (numpy PCG64): the same seed gives the '
+              'same measurements, bit for bit', '', minimum=0, maximum=1e9,
+              read_only=True),
     ParamSpec('geared.motor_inertia', 'double', 0.005, 'Geared link: motor inertia Jm',
               'kg m^2', minimum=0.0, strict_min=True, read_only=True),
     ParamSpec('geared.load_inertia', 'double', 1.0,
@@ -193,12 +227,18 @@ class SimulatorNode(Node):
                                              p['fault_velocity_factor'])
             # An initial state beyond it was refused by declare_parameters (the relations
             # of initial_positions and initial_velocities), as a run-time change is.
+        n = self.n  # the model's state: single_link_geared takes each list's first value
+        sensors = SensorModel(n, position_noise=p['position_noise'][:n],
+                              velocity_noise=p['velocity_noise'][:n],
+                              encoder_resolution=p['encoder_resolution'][:n],
+                              sensing_delay=p['sensing_delay'], seed=p['noise_seed'])
         self.core = SimulatorCore(model, q0=q0, qd0=qd0, effort_limits=limits,
                                   physics_step_ns=step_ns, control_period_ns=period_ns,
                                   velocity_limit=p['velocity_limit'],
                                   joint_names=robot['joint_names'],
                                   joint_limits=joint_limits,
-                                  hard_stops=p['enforce_position_limits'], envelope=envelope)
+                                  hard_stops=p['enforce_position_limits'], envelope=envelope,
+                                  sensors=sensors, actuation_delay=p['actuation_delay'])
         self.keeper = Timekeeper(mode=p['timing_mode'], period_ns=period_ns,
                                  real_time_factor=p['real_time_factor'],
                                  hold_until_command=p['wait_for_command'],
@@ -206,6 +246,12 @@ class SimulatorNode(Node):
         self.keeper.pause_at_ns = _pause_ns(p['pause_at'])
         self.state_pub = self.create_publisher(JointState, 'joint_states', STREAM_DEPTH)
         self.clock_pub = self.create_publisher(Clock, 'clock', STREAM_DEPTH)
+        # The true state beside the measurement. Always advertised (a recorder subscribes
+        # what has a publisher: arm-sim demo waits for it), published only when the two can
+        # differ (a sensor or actuator effect on): with the defaults, bags are what they were.
+        self.true_pub = self.create_publisher(JointState, 'simulator/true_joint_states',
+                                              STREAM_DEPTH)
+        self.publish_true = sensors.enabled or p['actuation_delay'] > 0
         # The first state waits for wait_for_nodes (e.g. the recorder) to match joint_states
         # and clock; until then time is held at t = 0 and nothing is published.
         self.gate = SubscriberGate(self, [self.state_pub, self.clock_pub],
@@ -382,6 +428,12 @@ class SimulatorNode(Node):
                          velocity=view.velocity, effort=view.effort)
         sec, nsec = divmod(self.core.time_ns, 1_000_000_000)
         msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nsec
+        if self.publish_true:  # before the measurement: a reader of it has both
+            true = self.core.true_view()
+            true_msg = JointState(name=list(true.names), position=true.position,
+                                  velocity=true.velocity, effort=true.effort)
+            true_msg.header.stamp = msg.header.stamp
+            self.true_pub.publish(true_msg)
         self.state_pub.publish(msg)
         clock = Clock()
         clock.clock = msg.header.stamp
