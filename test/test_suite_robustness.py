@@ -255,6 +255,10 @@ def test_a_sigkilled_suite_leaves_no_shared_memory_behind_the_next_run(ros, tmp_
     assert stale, 'the killed suite left its shared memory behind (else this shows nothing)'
 
     states = ros.collect(JointState, 'joint_states', qos=1000)
+    if not any(inode(f) == ino for f, ino in stale.items()):
+        # Any arm-sim run cleans at its start; one of another session on this machine
+        # got there first, and there is nothing left to show.
+        pytest.skip('another arm_sim run removed the stale files first')
     second = Cli('bringup', '--no-record', '--out', str(tmp_path / 'second'), domain=DOMAIN_ID)
     try:
         second.wait_line(ros, 'stop with Ctrl-C')
