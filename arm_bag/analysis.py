@@ -285,18 +285,28 @@ def _true_state(bag: BagData, js: JointStates, warnings: list[str]) -> JointStat
         warnings.append(f'{tr.topic}: joint names {list(tr.names)} differ from '
                         f'{list(js.names)}; figures from {js.topic}')
         return None
-    order = np.argsort(tr.stamp, kind='stable')
-    st, pos = tr.stamp[order], tr.position[order]
-    first = np.r_[True, st[1:] != st[:-1]]
-    st, pos = st[first], pos[first]
-    i = np.clip(np.searchsorted(st, js.stamp), 0, len(st) - 1)
-    hit = st[i] == js.stamp
+    rows, hit = _match_stamps(tr.stamp, tr.position, js.stamp, keep='first')
     if not hit.all():
         warnings.append(f'{tr.topic}: no true state for {int((~hit).sum())} of {len(js)} '
                         f'joint states; figures from the measured {js.topic}')
         return None
-    return JointStates(js.topic, js.names, js.stamp, js.log_time, pos[i], js.velocity,
+    return JointStates(js.topic, js.names, js.stamp, js.log_time, rows, js.velocity,
                        js.effort)
+
+
+def _match_stamps(st: np.ndarray, pos: np.ndarray, stamps: np.ndarray,
+                  keep: str) -> tuple[np.ndarray, np.ndarray]:
+    """The row of ``pos`` (N, J) whose stamp ``st`` (N,) [ns] is each of ``stamps`` (M,),
+    the ``keep='first'`` or ``'last'`` one of a repeated stamp: (rows (M, J), hit (M,)),
+    the rows where ``hit`` is False being any row (the caller decides)."""
+    if len(st) > 1 and not (st[1:] > st[:-1]).all():  # sort and drop repeats
+        order = np.argsort(st, kind='stable')
+        st, pos = st[order], pos[order]
+        same = st[1:] == st[:-1]
+        kept = np.r_[True, ~same] if keep == 'first' else np.r_[~same, True]
+        st, pos = st[kept], pos[kept]
+    i = np.clip(np.searchsorted(st, stamps), 0, len(st) - 1)
+    return pos[i], st[i] == stamps
 
 
 def _valid_trajectories(trajs, warnings: list[str]) -> list:
@@ -358,15 +368,9 @@ def _reference(bag: BagData, js: JointStates, warnings: list[str]) -> np.ndarray
     increasing = len(st) < 2 or bool((st[1:] > st[:-1]).all())
     if increasing and len(st) == len(js.stamp) and (st == js.stamp).all():
         return pos  # one reference per state, same increasing stamps (usual): no copy
-    if not increasing:  # sort; the last reference for a stamp wins
-        order = np.argsort(st, kind='stable')
-        st = st[order]
-        last = np.r_[st[1:] != st[:-1], True]
-        st, pos = st[last], pos[order][last]
-    i = np.clip(np.searchsorted(st, js.stamp), 0, len(st) - 1)
-    hit = st[i] == js.stamp
+    rows, hit = _match_stamps(st, pos, js.stamp, keep='last')  # the last reference wins
     out = np.full_like(js.position, np.nan)
-    out[hit] = pos[i[hit]]
+    out[hit] = rows[hit]
     if not hit.any():
         warnings.append('no reference stamp matches a joint state stamp; reference ignored')
         return None
