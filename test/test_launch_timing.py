@@ -38,7 +38,9 @@ def launch_ros_arguments(node, params_file, tmp_path: Path) -> list[str]:
             args += ['--params-file', str(CONFIG)]
             continue
         assert isinstance(entry, dict) and all(
-            isinstance(v, (bool, int, float, str)) for v in entry.values()), entry
+            isinstance(v, (bool, int, float, str)) or (
+                isinstance(v, list) and all(isinstance(x, str) for x in v))
+            for v in entry.values()), entry
         path = tmp_path / f'launch_params_{k}.yaml'
         path.write_text(yaml.dump({f'/{name}' if name else '/**':
                                    {'ros__parameters': entry}}))
