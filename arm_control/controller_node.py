@@ -34,12 +34,12 @@ from arm_common.node import (
 from arm_common.params import ParamSpec
 from arm_control.core import ControllerCore
 from arm_control.laws import GAINS, LAW_TABLE, LAWS, ControlLaw, Gains
+from arm_control.model_params import CONTROL_MODEL_PARAMS, controller_model
 from arm_control.trajectory import StaleTrajectoryError, TrajectoryError, TrajectoryPoint
 from arm_dynamics.limits import JointLimits
-from arm_dynamics.models import joint_count, robot_model
+from arm_dynamics.models import joint_count
 from arm_dynamics.robot import ROBOT_PARAMS
 from arm_dynamics.timing import answer_tag
-from arm_dynamics.two_link import TwoLinkArm
 
 SUMMARY = '''
 Joint-space controller for the 2-R arm. Subscribes joint_states (sensor_msgs/JointState)
@@ -65,8 +65,6 @@ restarted controller holds where the arm is.
 '''
 
 EARLY_WAIT = 5.0  # s (wall): a trajectory received before any joint state waits this long
-MODEL_KEYS = tuple(k for k in TwoLinkArm.PARAMETERS if k != 'gravity')  # control_model.<key>
-# (every model of arm_dynamics.models takes these names)
 
 CONTROL_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('law', 'string', 'computed_torque', 'Control law: ' + '; '.join(
@@ -90,15 +88,7 @@ CONTROL_PARAMS: tuple[ParamSpec, ...] = (
               'A forward step of simulated time between two joint states longer than this '
               'is a time jump: the trajectory is dropped and the measured position held',
               's', minimum=0.0, strict_min=True, maximum=1e6, read_only=True),
-) + tuple(
-    ParamSpec(f'control_model.{k}', 'doubles', [], f'Controller model {k.replace("_", " ")}; '
-              'empty = the robot parameter (set to study model mismatch)',
-              next(s.unit for s in ROBOT_PARAMS if s.name == k), minimum=0.0,
-              maximum=1e4, read_only=True, per_joint=True)
-    for k in MODEL_KEYS
-) + (ParamSpec('control_model.gravity', 'double', -1.0, 'Controller model gravity; negative = the '
-               'robot parameter', 'm/s^2', maximum=100.0, read_only=True),
-     WAIT_FOR_NODES)
+) + CONTROL_MODEL_PARAMS + (WAIT_FOR_NODES,)
 
 
 def _stamp(msg) -> float:
@@ -120,12 +110,8 @@ class ControllerNode(Node):
     def __init__(self) -> None:
         super().__init__('controller', cli_args=clock_in_namespace())
         p = declare_parameters(self, ROBOT_PARAMS + CONTROL_PARAMS, joints=joint_count)
-        model_args = {k: (p[f'control_model.{k}'] or p[k]) for k in MODEL_KEYS}
-        model_args['gravity'] = (p['gravity'] if p['control_model.gravity'] < 0
-                                 else p['control_model.gravity'])
-        model_args['model'] = p['model']
         try:
-            model = robot_model(model_args)
+            model = controller_model(p)
             law = ControlLaw(p['law'], gains_from(p), model, tuple(p['effort_limits']))
             limits = JointLimits.from_params(p)
         except ValueError as exc:

@@ -28,15 +28,15 @@ from typing import IO, Any
 import numpy as np
 import yaml
 
+from arm_control.model_params import MODEL_KEYS as CONTROLLER_MODEL_KEYS
 from arm_dynamics import identify as ident
 from arm_dynamics.robot import ROBOT_DEFAULTS, ROBOT_PARAMS, resolve_robot
 from arm_dynamics.two_link import TwoLinkArm
 
 EXIT_OK, EXIT_USAGE, EXIT_DATA, EXIT_UNREADABLE = 0, 2, 3, 4
-#: The controller's model parameters the params file sets (the controller node's
-#: ``control_model.<key>``, :data:`arm_control.controller_node.MODEL_KEYS` plus gravity).
-MODEL_KEYS = ('link_lengths', 'com_distances', 'link_masses', 'link_inertias',
-              'joint_damping', 'gravity')
+#: The controller's model parameters the params file sets (``control_model.<key>``:
+#: :data:`arm_control.model_params.MODEL_KEYS` plus gravity).
+MODEL_KEYS = (*CONTROLLER_MODEL_KEYS, 'gravity')
 CONTROLLER_SECTION = '/**/controller'
 
 DESCRIPTION = """\

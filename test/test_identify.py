@@ -17,7 +17,6 @@ default effort limits (60, 20) N m with the payload. The planner's chirp
 from __future__ import annotations
 
 import json
-from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
@@ -286,8 +285,9 @@ def _controller_model(params_file: Path) -> TwoLinkArm:
     ROBOT_PARAMS + CONTROL_PARAMS by arm_common.params.resolve (the node's start-up
     check), then ``control_model.<key> or <key>``."""
     from arm_common.params import resolve
-    from arm_control.controller_node import CONTROL_PARAMS, MODEL_KEYS
-    from arm_dynamics.models import joint_count, robot_model
+    from arm_control.controller_node import CONTROL_PARAMS
+    from arm_control.model_params import controller_model
+    from arm_dynamics.models import joint_count
     from arm_dynamics.robot import ROBOT_PARAMS
 
     data = yaml.safe_load(params_file.read_text())
@@ -295,27 +295,21 @@ def _controller_model(params_file: Path) -> TwoLinkArm:
     specs = ROBOT_PARAMS + CONTROL_PARAMS
     names = {s.name for s in specs}
     p = resolve(specs, {k: v for k, v in given.items() if k in names}, joint_count)
-    args = {k: (p[f'control_model.{k}'] or p[k]) for k in MODEL_KEYS}
-    gravity = p['control_model.gravity']
-    args['gravity'] = p['gravity'] if gravity < 0 else gravity
-    args['model'] = p['model']
-    model = robot_model(args)
+    model = controller_model(p)
     assert isinstance(model, TwoLinkArm)
     return model
 
 
-def _line_deviation(model: TwoLinkArm, gains: dict) -> float:
+def _line_deviation(control_model: str | dict | None, gains: dict) -> float:
     """deviation_max [m] of the payload sweep's scenario (config/sweeps/payload.yaml: the
-    1 s line Pf -> Ps, 1 kg at the tip) with the controller's model ``model``, through the
+    1 s line Pf -> Ps, 1 kg at the tip) with the sweep's ``control_model`` setting (a
+    params file, a mapping of model parameters; None: the nominal model), through the
     sweep's own closed loop and metric (arm_sim.sweep.run_chunk)."""
     from arm_sim.sweep import Scenario, load_spec, run_chunk, shipped_specs
 
     spec = load_spec(shipped_specs()['payload'])
-    s = Scenario(**{**spec.scenario, 'payload': PAYLOAD, 'law': 'computed_torque', **gains})
-    # The sweep's Scenario.model() is the robot with relative errors; this scenario's
-    # controller has the given model instead (the plant, plan and metric are the sweep's).
-    cls = type('WithModel', (Scenario,), {'model': lambda self: model})
-    scenario = cls(**{f.name: getattr(s, f.name) for f in fields(Scenario)})
+    scenario = Scenario(**{**spec.scenario, 'payload': PAYLOAD, 'law': 'computed_torque',
+                           'control_model': control_model, **gains})
     (row,) = run_chunk([(0, scenario)])
     assert row['status'] == 'ok', row['message']
     return float(row['deviation_max'])
@@ -345,9 +339,10 @@ def test_the_params_file_loads_into_the_controller_and_fixes_the_payload_sweep(
     spec_gains = [dict(kp=(100.0, 60.0), kd=(20.0, 12.0)), dict(kp=(400.0, 400.0),
                                                                kd=(40.0, 40.0))]
     for gains in spec_gains:
-        before = _line_deviation(NOMINAL, gains)
-        after = _line_deviation(model, gains)
-        correct = _line_deviation(plant, gains)
+        before = _line_deviation(None, gains)
+        after = _line_deviation(str(out), gains)   # the params file, as a sweep reads it
+        correct = _line_deviation({k: np.asarray(getattr(plant, k)).tolist()
+                                   for k in identify_cli.MODEL_KEYS}, gains)
         assert abs(after - correct) <= 0.10 * correct, (before, after, correct)
         assert before > 10 * correct, (before, after, correct)
 

@@ -53,7 +53,17 @@ empty / null where undefined):
   ``settling_time_overall`` [s], ``overshoot`` [% per joint] (regulation);
   ``deviation_max``, ``deviation_rms``, ``line_overshoot_end``, ``line_overshoot_start``
   [m] (straight line); ``torque_peak``, ``torque_rms`` [N m per joint],
-  ``saturated_fraction`` [per joint], ``energy`` [J].
+  ``saturated_fraction`` [per joint], ``energy`` [J];
+* only in a sweep whose spec gives a ``control_model`` (a params file or a mapping: the
+  controller's model, instead of ``mass_error``/``length_error``, which are then empty):
+  ``control_model`` (the file as given, ``inline``, or empty);
+* only in a sweep whose spec says ``margins: true`` (:mod:`~arm_sim.sweep.margins`: the
+  linearised sampled-data loop at the goal's joint angles, each joint's loop broken at its
+  torque with the other closed): ``phase_margin`` [deg per joint], ``gain_margin`` [dB per
+  joint; ``inf`` where the phase never reaches -180 deg below Nyquist], ``bandwidth``
+  [Hz per joint, the gain crossover]; empty where the scenario was refused or the law has
+  no linearisation (``message`` says why; it also says when the linearised loop is
+  unstable).
 
 The modules, each importing only those before it:
 
@@ -66,6 +76,7 @@ The modules, each importing only those before it:
   :data:`MAX_SPEC_BYTES`; YAML anchors and aliases refused), checked before anything is
   built.
 * :mod:`~arm_sim.sweep.plan`: a scenario's plan (:class:`Planned`, :func:`plan_scenario`).
+* :mod:`~arm_sim.sweep.margins`: a scenario's stability margins (``margins: true``).
 * :mod:`~arm_sim.sweep.metrics`: a scenario's row and the metrics of its :class:`Run`
   (:func:`segment_metrics`).
 * :mod:`~arm_sim.sweep.run`: the batch closed loop, :func:`run_chunk`,

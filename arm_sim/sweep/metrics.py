@@ -13,7 +13,8 @@ from typing import Any
 import numpy as np
 
 from arm_bag import metrics
-from arm_sim.sweep.columns import COLUMNS, put
+from arm_sim.sweep.columns import COLUMNS, MARGIN_NAMES, put
+from arm_sim.sweep.margins import scenario_margins
 from arm_sim.sweep.plan import Planned
 from arm_sim.sweep.spec import ROBOT, Scenario
 
@@ -33,8 +34,9 @@ class Run:
 
 
 def new_row(index: int, s: Scenario, planned: Planned) -> dict:
-    """The row of scenario ``s`` before its run: settings, plan outcome (``ok`` or
-    ``refused``), every metric undefined (NaN)."""
+    """The row of scenario ``s`` before its run: settings (``control_model``: the params
+    file, ``inline`` or empty; with one, ``mass_error`` and ``length_error`` NaN), plan
+    outcome (``ok`` or ``refused``), every metric undefined (NaN)."""
     row: dict[str, Any] = dict.fromkeys(COLUMNS, math.nan)
     values = dict(index=index, task=s.task, start_x=s.start[0], start_y=s.start[1],
                   goal_x=s.goal[0], goal_y=s.goal[1], elbow=s.elbow,
@@ -49,6 +51,9 @@ def new_row(index: int, s: Scenario, planned: Planned) -> dict:
                   planned_peak_torque=planned.peak_torque)
     for k, v in values.items():
         put(row, k, v)
+    if s.control_model is not None:  # the model is the file's or the mapping's: no errors
+        row['mass_error'] = row['length_error'] = math.nan
+    row['control_model'] = '' if s.control_model is None else s.control_model.source
     return row
 
 
@@ -78,6 +83,23 @@ def segment_metrics(t: np.ndarray, q: np.ndarray, qd: np.ndarray, effort: np.nda
     return metrics.segment_metrics(t, q, desired=q_des, line=planned.line,
                                    xy=ROBOT.forward_kinematics(q), effort=effort,
                                    effort_limits=limits, work=(effort, q))
+
+
+def add_margins(row: dict, s: Scenario, planned: Planned) -> dict:
+    """Add the margin columns (:data:`~arm_sim.sweep.columns.MARGIN_COLUMNS`) to ``row``:
+    :func:`~arm_sim.sweep.margins.scenario_margins` about the goal's joint angles (the
+    plan's last point); NaN where there is no plan (``refused``) or no linearisation (the
+    reason appended to ``message``)."""
+    for name in MARGIN_NAMES:
+        put(row, name, None)
+    if planned.set_point is None:
+        return row
+    values, note = scenario_margins(s, planned.set_point)
+    for k, v in values.items():
+        put(row, k, v)
+    if note:
+        row['message'] = f"{row['message']}; {note}" if row['message'] else note
+    return row
 
 
 def finish_row(row: dict, s: Scenario, planned: Planned, run: Run) -> dict:

@@ -19,7 +19,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from arm_sim.sweep.columns import COLUMNS, STATUSES
+from arm_sim.sweep.columns import COLUMNS, MARGIN_COLUMNS, STATUSES
 from arm_sim.sweep.spec import MAX_CURVES, VARIANT, PlotSpec, Spec, plot_problem
 
 
@@ -114,21 +114,33 @@ class OutputFile:
             self.tmp = None
 
 
-def _cell(v: object) -> object:
+def _cell(v: object, infinite: bool = False) -> object:
+    """A CSV cell: NaN (undefined) empty; an infinity empty too, or ``inf``/``-inf`` where
+    ``infinite`` (a margin column: an infinite gain margin is a value)."""
     if isinstance(v, float) and not math.isfinite(v):
-        return ''
+        return str(v) if infinite and not math.isnan(v) else ''
     return v
 
 
-def write_csv(rows: Sequence[dict], path: str | Path | OutputFile) -> None:
-    """One row per scenario, columns :data:`~arm_sim.sweep.columns.COLUMNS`; undefined
-    values are empty cells. Written whole or not at all (:class:`OutputFile`); raises
-    :class:`OutputError`."""
+def _json_value(v: object, infinite: bool = False) -> object:
+    """A JSON value: NaN null; an infinity null too, or ``"inf"``/``"-inf"`` where
+    ``infinite`` (JSON has no infinity)."""
+    if isinstance(v, float) and not math.isfinite(v):
+        return str(v) if infinite and not math.isnan(v) else None
+    return v
+
+
+def write_csv(rows: Sequence[dict], path: str | Path | OutputFile,
+              columns: Sequence[str] = COLUMNS) -> None:
+    """One row per scenario, ``columns`` (default :data:`~arm_sim.sweep.columns.COLUMNS`;
+    a spec's: :attr:`Spec.columns <arm_sim.sweep.spec.Spec.columns>`); undefined values
+    are empty cells, infinite margins ``inf``. Written whole or not at all
+    (:class:`OutputFile`); raises :class:`OutputError`."""
     def fill(f: IO) -> None:
         w = csv.writer(f)
-        w.writerow(COLUMNS)
+        w.writerow(columns)
         for r in rows:
-            w.writerow([_cell(r[c]) for c in COLUMNS])
+            w.writerow([_cell(r[c], c in MARGIN_COLUMNS) for c in columns])
 
     (path if isinstance(path, OutputFile) else OutputFile(path)).write(fill)
 
@@ -136,16 +148,16 @@ def write_csv(rows: Sequence[dict], path: str | Path | OutputFile) -> None:
 def to_json(spec: Spec, rows: Sequence[dict], seconds: float,
             interrupted: dict | None = None) -> dict:
     """``--json``: ``name``, ``question``, ``scenarios``, ``wall_time`` s, ``status``
-    counts, ``columns`` and ``rows`` (objects keyed by the columns; null = undefined); and
-    ``interrupted`` (e.g. ``{signal, finished, total}``) when given: the rows are the
+    counts, ``columns`` (:attr:`Spec.columns <arm_sim.sweep.spec.Spec.columns>`) and
+    ``rows`` (objects keyed by the columns; null = undefined, an infinite margin ``"inf"``);
+    and ``interrupted`` (e.g. ``{signal, finished, total}``) when given: the rows are the
     finished scenarios only."""
-    def clean(v):
-        return None if isinstance(v, float) and not math.isfinite(v) else v
-
+    cols = spec.columns
     counts = {k: sum(r['status'] == k for r in rows) for k in STATUSES}
     doc = {'name': spec.name, 'question': spec.question, 'scenarios': len(rows),
-           'wall_time': seconds, 'status': counts, 'columns': list(COLUMNS),
-           'rows': [{c: clean(r[c]) for c in COLUMNS} for r in rows]}
+           'wall_time': seconds, 'status': counts, 'columns': list(cols),
+           'rows': [{c: _json_value(r[c], c in MARGIN_COLUMNS) for c in cols}
+                    for r in rows]}
     if interrupted is not None:
         doc['interrupted'] = interrupted
     return doc
@@ -264,7 +276,7 @@ def plot_sweep(spec: Spec, rows: Sequence[dict], path: str | Path | OutputFile) 
 
 _UNITS = {'duration': 's', 'payload': 'kg', 'control_rate': 'Hz', 'deviation': 'm',
           'torque': 'N m', 'settling': 's', 'tracking': 'rad', 'kp': '', 'energy': 'J',
-          'overshoot': '%'}
+          'overshoot': '%', 'phase_margin': 'deg', 'gain_margin': 'dB', 'bandwidth': 'Hz'}
 
 
 def _label(col: str) -> str:
@@ -280,7 +292,9 @@ def summary(spec: Spec, rows: Sequence[dict], seconds: float) -> str:
     if spec.question:
         lines.append(f'question: {spec.question}')
     ok = [r for r in rows if r['status'] == 'ok']
-    for col in ('torque_peak_1', 'torque_peak_2', 'deviation_max', 'settling_time_overall'):
+    margins = ('phase_margin_1', 'phase_margin_2') if spec.margins else ()
+    for col in ('torque_peak_1', 'torque_peak_2', 'deviation_max', 'settling_time_overall',
+                *margins):
         v = np.array([r[col] for r in ok], dtype=float)
         v = v[np.isfinite(v)]
         if len(v):

@@ -38,7 +38,7 @@ from arm_dynamics.batch import BatchSimulator
 from arm_dynamics.integrate import simulate
 from arm_dynamics.robot import JOINT_NAMES
 from arm_dynamics.two_link import TwoLinkBatch
-from arm_sim.sweep.metrics import Run, finish_row, new_row
+from arm_sim.sweep.metrics import Run, add_margins, finish_row, new_row
 from arm_sim.sweep.plan import Planned, plan_scenario
 from arm_sim.sweep.spec import Scenario, SpecError
 
@@ -93,8 +93,8 @@ def _batches(ticks: Sequence[int]) -> list[list[int]]:
     return out
 
 
-def run_chunk(items: Sequence[tuple[int, Scenario]], keep_runs: bool = False
-              ) -> list[dict] | tuple[list[dict], list[Run | None]]:
+def run_chunk(items: Sequence[tuple[int, Scenario]], keep_runs: bool = False,
+              margins: bool = False) -> list[dict] | tuple[list[dict], list[Run | None]]:
     """Run scenarios as one batch; they must share law, control rate and physics step.
 
     Parameters
@@ -102,6 +102,7 @@ def run_chunk(items: Sequence[tuple[int, Scenario]], keep_runs: bool = False
     items : (index, scenario) pairs.
     keep_runs : also return each scenario's :class:`~arm_sim.sweep.metrics.Run` (None
         where refused).
+    margins : add the margin columns (:func:`~arm_sim.sweep.metrics.add_margins`).
 
     Returns
     -------
@@ -125,12 +126,15 @@ def run_chunk(items: Sequence[tuple[int, Scenario]], keep_runs: bool = False
                                          law, step_ns, substeps)):
             runs[k] = run
             finish_row(rows[k], items[k][1], planned[k], run)
+    if margins:
+        for (_, s), row, p in zip(items, rows, planned):
+            add_margins(row, s, p)
     return (rows, runs) if keep_runs else rows
 
 
-def _rows_of(items: Sequence[tuple[int, Scenario]]) -> list[dict]:
+def _rows_of(items: Sequence[tuple[int, Scenario]], margins: bool = False) -> list[dict]:
     """The rows of :func:`run_chunk` (what a worker process or a Dask task runs)."""
-    rows = run_chunk(items)
+    rows = run_chunk(items, margins=True) if margins else run_chunk(items)
     assert isinstance(rows, list)
     return rows
 
@@ -189,7 +193,7 @@ def _run_batch(scenarios: Sequence[Scenario], planned: Sequence[Planned], law: s
     return out
 
 
-def run_single(index: int, s: Scenario, keep_run: bool = False
+def run_single(index: int, s: Scenario, keep_run: bool = False, margins: bool = False
                ) -> dict | tuple[dict, Run | None]:
     """One scenario the nodes' way, one state at a time: the controller core
     (:class:`~arm_control.core.ControllerCore` with :class:`~arm_control.laws.ControlLaw`)
@@ -200,6 +204,8 @@ def run_single(index: int, s: Scenario, keep_run: bool = False
 
     planned = _within_limits(s, plan_scenario(s))
     row = new_row(index, s, planned)
+    if margins:
+        add_margins(row, s, planned)
     if planned.trajectory is None:
         return (row, None) if keep_run else row
     step_ns, substeps = s.timing()
@@ -274,7 +280,8 @@ class Progress:
 
 def run_sweep(scenarios: Sequence[Scenario], *, workers: int = 2,
               chunk_size: int | None = None, dask: str | None = None,
-              progress: Callable[[int], None] | None = None) -> list[dict]:
+              progress: Callable[[int], None] | None = None, margins: bool = False
+              ) -> list[dict]:
     """Run every scenario; one row per scenario (keys
     :data:`~arm_sim.sweep.columns.COLUMNS`), in input order.
 
@@ -286,6 +293,7 @@ def run_sweep(scenarios: Sequence[Scenario], *, workers: int = 2,
     chunk_size : scenarios per batch (default :func:`default_chunk_size`).
     dask : a Dask scheduler address (``tcp://host:8786``): run the chunks there.
     progress : called with the number of scenarios each finished chunk held.
+    margins : add the margin columns (the spec's ``margins: true``).
 
     Raises
     ------
@@ -305,14 +313,15 @@ def run_sweep(scenarios: Sequence[Scenario], *, workers: int = 2,
         if progress:
             progress(len(chunk_rows))
 
+    rows_of = functools.partial(_rows_of, margins=margins) if margins else _rows_of
     try:
         if dask:
-            _run_dask(dask, chunks, take)
+            _run_dask(dask, chunks, take, rows_of)
         elif workers == 1 or len(chunks) <= 1:
             for c in chunks:
-                take(_checked(c, functools.partial(_rows_of, c)))
+                take(_checked(c, functools.partial(rows_of, c)))
         else:
-            _run_pool(chunks, min(workers, len(chunks)), take)
+            _run_pool(chunks, min(workers, len(chunks)), take, rows_of)
     except (KeyboardInterrupt, _ChunkFailed) as exc:
         done = [r for r in rows if r is not None]
         reason = str(exc) if isinstance(exc, _ChunkFailed) else None
@@ -348,7 +357,8 @@ def _worker_init(parent: int) -> None:
     watch_parent()
 
 
-def _run_pool(chunks: list, workers: int, take: Callable[[list[dict]], None]) -> None:
+def _run_pool(chunks: list, workers: int, take: Callable[[list[dict]], None],
+              rows_of: Callable[[list], list[dict]] = _rows_of) -> None:
     """Run the chunks on ``workers`` local processes; on any exception (KeyboardInterrupt
     included) stop at once: pending chunks cancelled, the workers terminated."""
     import multiprocessing
@@ -361,7 +371,7 @@ def _run_pool(chunks: list, workers: int, take: Callable[[list[dict]], None]) ->
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=context,
                                initializer=_worker_init, initargs=(os.getpid(),))
     try:
-        futures = {pool.submit(_rows_of, c): c for c in chunks}
+        futures = {pool.submit(rows_of, c): c for c in chunks}
         for f in as_completed(futures):
             take(_checked(futures[f], f.result))
     except BaseException:
@@ -398,12 +408,13 @@ def _stop_pool(pool) -> None:
             signal.signal(sig, handler)
 
 
-def _run_dask(address: str, chunks: list, take: Callable[[list[dict]], None]) -> None:
+def _run_dask(address: str, chunks: list, take: Callable[[list[dict]], None],
+              rows_of: Callable[[list], list[dict]] = _rows_of) -> None:
     """Run the chunks on the Dask cluster at ``address`` (imports dask only there)."""
     from arm_common.cluster import ClusterError, dask_map
 
     try:
-        dask_map(address, _rows_of, chunks, on_result=lambda _i, rows: take(rows))
+        dask_map(address, rows_of, chunks, on_result=lambda _i, rows: take(rows))
     except ClusterError as exc:
         raise SpecError(str(exc)) from None
     except Exception as exc:  # a chunk raised there, or the cluster went away

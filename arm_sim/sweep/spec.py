@@ -23,13 +23,16 @@ from typing import Any
 
 import numpy as np
 
-from arm_common.params import ParamSpec
+from arm_common.params import ParamSpec, resolve
 from arm_control.laws import BATCH_LAWS, Gains
+from arm_control.model_params import CONTROL_MODEL_PARAMS, MODEL_KEYS, controller_model
 from arm_dynamics.limits import DEFAULT_EFFORT
+from arm_dynamics.models import joint_count
+from arm_dynamics.robot import ROBOT_PARAMS
 from arm_dynamics.two_link import TwoLinkArm
 from arm_planner.planner import FEASIBILITY, MAX_DURATION
 from arm_planner.time_scaling import KINDS
-from arm_sim.sweep.columns import COLUMNS
+from arm_sim.sweep.columns import COLUMNS, MARGIN_COLUMNS, MODEL_COLUMNS, columns
 
 # The limits that size a sweep's work, all checked before anything is built or run
 # (``arm-sim sweep --help`` and docs/sweeps.md state them).
@@ -98,6 +101,13 @@ SETTINGS: dict[str, ParamSpec] = {p.name: p for p in (
     ParamSpec('length_error', 'double', 0.0, "the controller's model link lengths and centre "
               'of gravity distances are (1 + e) times the real ones', 'fraction',
               minimum=-1.0, maximum=100.0, strict_min=True),
+    ParamSpec('control_model', 'string', '', "the controller's model instead of mass_error "
+              'and length_error: a params file (FILE.yaml, as arm-sim identify --params-out '
+              "writes it: its /** and /**/controller control_model.* values, checked as the "
+              "controller checks them; relative to the spec's folder) or a mapping "
+              '{link_lengths, com_distances: [m, m], link_masses: [kg, kg], link_inertias: '
+              '[kg m^2, kg m^2], joint_damping: [N m s/rad, N m s/rad], gravity: m/s^2}, '
+              'unset keys the robot\'s', 'file or mapping'),
     ParamSpec('control_rate', 'double', 100.0, 'control (state and command) rate; 1/rate a '
               'whole multiple of physics_step', 'Hz', minimum=0.1, maximum=1e5),
     ParamSpec('physics_step', 'double', 0.001, 'RK4 step of the plant', 's', minimum=1e-6,
@@ -140,6 +150,8 @@ def check_setting(name: str, value: object) -> Any:
     """``value`` for setting ``name``, normalised: a string, a float (or ``'fastest'``),
     or a pair as a tuple of two floats (one number: the same on both joints); raises
     ValueError naming the setting and the value (:meth:`ParamSpec.check`'s reason)."""
+    if name == 'control_model':
+        return control_model_setting(value)
     param = SETTINGS[name]
     if param.kind == 'string':
         if not isinstance(value, str):  # ParamSpec would say "a string": name the choices
@@ -165,6 +177,102 @@ def check_setting(name: str, value: object) -> Any:
         x = _number(one, value)
         return x, x
     raise ValueError(f'{name} must be a tip position [x, y] in m, got {value!r}')
+
+
+# ---------------------------------------------------------------------- control model
+# MODEL_KEYS and CONTROL_MODEL_PARAMS: arm_control.model_params, the controller's own.
+_MODEL_SPECS = ROBOT_PARAMS + CONTROL_MODEL_PARAMS
+_INLINE_KEYS = (*MODEL_KEYS, 'gravity')
+
+
+@dataclass(frozen=True)
+class ControlModel:
+    """A scenario's ``control_model``: the controller's model as the controller node
+    builds it from ``values`` (its robot and ``control_model.*`` parameters, checked);
+    ``source`` the params file as given, or ``inline``."""
+
+    source: str
+    values: tuple[tuple[str, Any], ...]
+
+    def arm(self) -> TwoLinkArm:
+        """The controller's model: ``control_model.<key>`` or the robot's ``<key>``, as
+        ``ControllerNode`` builds it."""
+        model = controller_model(dict(self.values))
+        assert isinstance(model, TwoLinkArm)  # checked by control_model_setting
+        return model
+
+
+def _model_values(given: dict, where: str) -> tuple[tuple[str, Any], ...]:
+    """The resolved robot and control_model.* parameters for ``given`` (the controller
+    node's start-up checks: :func:`arm_common.params.resolve`); ValueError naming each
+    refused value."""
+    try:
+        p = resolve(_MODEL_SPECS, given, joint_count)
+    except ValueError as exc:
+        raise ValueError(f'{where}: {exc}') from None
+    values = tuple((k, tuple(v) if isinstance(v, list) else v) for k, v in sorted(p.items()))
+    cm = ControlModel(where, values)
+    try:
+        model = cm.arm() if p['model'] == 'two_link' else None
+    except ValueError as exc:
+        raise ValueError(f'{where}: {exc}') from None
+    if model is None:
+        raise ValueError(f"{where}: model {p['model']!r}: a sweep runs the two-link arm "
+                         "(model 'two_link')")
+    return values
+
+
+def control_model_setting(value: object, base: Path | None = None) -> ControlModel | None:
+    """A ``control_model`` value: None (the robot with ``mass_error``/``length_error``), a
+    :class:`ControlModel`, a params file path (relative to ``base``, default the current
+    folder) or a mapping of :data:`MODEL_KEYS` and ``gravity``; ValueError naming the bad
+    value."""
+    if value is None or isinstance(value, ControlModel):
+        return value
+    if isinstance(value, dict):
+        unknown = [k for k in value if k not in _INLINE_KEYS]
+        if unknown:
+            raise ValueError(f'control_model: key {unknown[0]!r} unknown (known: '
+                             f"{', '.join(_INLINE_KEYS)})")
+        if not value:
+            raise ValueError('control_model: an empty mapping (give link_masses, ... or '
+                             'leave control_model out)')
+        given = {f'control_model.{k}': v for k, v in value.items()}
+        return ControlModel('inline', _model_values(given, 'control_model'))
+    if not isinstance(value, str) or not value:
+        raise ValueError('control_model must be a params file (FILE.yaml) or a mapping '
+                         f'{{link_masses: [kg, kg], ...}}, got {value!r}')
+    path = Path(value)
+    if base is not None and not path.is_absolute():
+        path = base / path
+    where = f'control_model {value}'
+    try:
+        with open(path, 'rb') as f:
+            data = f.read(MAX_SPEC_BYTES + 1)
+    except OSError as exc:
+        raise ValueError(f'{where}: cannot read it: {exc.strerror or exc}') from None
+    if len(data) > MAX_SPEC_BYTES:
+        raise ValueError(f'{where}: more than {MAX_SPEC_BYTES} bytes: not a params file')
+    import yaml
+    try:
+        doc = yaml.load(data.decode('utf-8', 'replace'), Loader=_loader())
+    except (yaml.YAMLError, SpecError) as exc:
+        first = str(exc).strip().splitlines()
+        raise ValueError(f"{where}: not YAML: {' '.join(s.strip() for s in first)}") from None
+    found: dict[str, Any] = {}
+    for section in ('/**', '/**/controller'):
+        params = doc.get(section, {}) if isinstance(doc, dict) else None
+        params = params.get('ros__parameters', {}) if isinstance(params, dict) else None
+        if not isinstance(params, dict):
+            raise ValueError(f'{where}: not a params file (a mapping {section}: '
+                             '{ros__parameters: {...}})')
+        found.update(params)
+    names = {s.name for s in _MODEL_SPECS}
+    found = {k: v for k, v in found.items() if k in names}
+    if not any(k.startswith('control_model.') for k in found):
+        raise ValueError(f'{where}: sets no /**/controller control_model.* parameter (the '
+                         'controller would use the robot itself)')
+    return ControlModel(value, _model_values(found, where))
 
 
 # ---------------------------------------------------------------------- scenarios
@@ -193,6 +301,7 @@ class Scenario:
     payload: float = _default('payload')
     mass_error: float = _default('mass_error')
     length_error: float = _default('length_error')
+    control_model: ControlModel | None = None
     control_rate: float = _default('control_rate')
     physics_step: float = _default('physics_step')
     effort_limits: tuple[float, float] = _default('effort_limits')
@@ -201,6 +310,10 @@ class Scenario:
     def __post_init__(self) -> None:
         for f in fields(self):
             object.__setattr__(self, f.name, check_setting(f.name, getattr(self, f.name)))
+        if self.control_model is not None and (self.mass_error or self.length_error):
+            raise ValueError(f'control_model {self.control_model.source} and mass_error '
+                             f'{self.mass_error:g} / length_error {self.length_error:g} '
+                             "both set the controller's model: give one")
         self.timing()  # raises on a control period that is no whole number of steps
         if self.duration == 'fastest' and self.feasibility == 'ignore':
             raise ValueError("duration 'fastest' is fastest within the effort limits: "
@@ -247,8 +360,11 @@ class Scenario:
         return ROBOT.with_payload(self.payload)
 
     def model(self) -> TwoLinkArm:
-        """The controller's model: the robot (without the payload) with the errors
-        (:meth:`TwoLinkArm.with_errors <arm_dynamics.two_link.TwoLinkArm.with_errors>`)."""
+        """The controller's model: the ``control_model``'s (:meth:`ControlModel.arm`), or
+        else the robot (without the payload) with the errors (:meth:`TwoLinkArm.with_errors
+        <arm_dynamics.two_link.TwoLinkArm.with_errors>`)."""
+        if self.control_model is not None:
+            return self.control_model.arm()
         return ROBOT.with_errors(self.mass_error, self.length_error)
 
 
@@ -274,6 +390,20 @@ class Spec:
     samples: int = 0
     seed: int = 0
     plot: PlotSpec | None = None
+    margins: bool = False
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """Its result columns (:func:`~arm_sim.sweep.columns.columns`): :data:`~arm_sim.
+        sweep.columns.COLUMNS`, the ``control_model`` column if a scenario gives one, the
+        margin columns if ``margins``."""
+        return columns(self.margins, self.uses_control_model)
+
+    @property
+    def uses_control_model(self) -> bool:
+        """Whether some scenario's controller model is a ``control_model``."""
+        values = setting_values(self, 'control_model') or ()
+        return any(isinstance(v, ControlModel) for v in values)
 
     def count(self) -> int:
         """The number of scenarios (without building them)."""
@@ -319,7 +449,10 @@ _TOP = {'name': 'short name (used in titles)', 'question': 'the question the swe
         'sweep': 'grid (every combination of the axes) | random (samples draws)',
         'samples': 'random: number of scenarios', 'seed': 'random: seed (default 0)',
         'scenario': 'fixed settings (the defaults below otherwise)',
-        'axes': 'varied settings', 'plot': '{x: COLUMN, y: [COLUMN...], by: COLUMN}'}
+        'axes': 'varied settings', 'plot': '{x: COLUMN, y: [COLUMN...], by: COLUMN}',
+        'margins': 'true: add the stability-margin columns phase_margin [deg], gain_margin '
+                   '[dB], bandwidth [Hz] per joint (the linearised loop at the goal; some ms '
+                   'per scenario); default false'}
 
 
 def _known(what: str, key: object, known: Sequence[str] | dict) -> None:
@@ -369,7 +502,7 @@ def _axis(kind: str, name: str, value: object) -> Any:
                     and not isinstance(arg[2], bool) and arg[2] >= 1):
                 raise SpecError(f'{where}: {op} takes [first, last, count >= 1], got {arg!r}')
             lo, hi = (_check_setting(where, name, v) for v in arg[:2])
-            if isinstance(lo, str):
+            if not isinstance(lo, (float, tuple)):
                 raise SpecError(f'{where}: {op} needs numbers, got {arg!r}')
             if op == 'logspace' and not (np.asarray(lo) > 0).all() & (np.asarray(hi) > 0).all():
                 raise SpecError(f'{where}: logspace needs first and last > 0, got {arg!r}')
@@ -379,6 +512,8 @@ def _axis(kind: str, name: str, value: object) -> Any:
             if not (isinstance(arg, list) and len(arg) == 2):
                 raise SpecError(f'{where}: {op} takes [low, high], got {arg!r}')
             lo, hi = (_check_setting(where, name, v) for v in arg)
+            if not isinstance(lo, (float, tuple)):
+                raise SpecError(f'{where}: {op} needs numbers, got {arg!r}')
             if op == 'loguniform' and not (np.asarray(lo) > 0).all():
                 raise SpecError(f'{where}: loguniform needs low > 0, got {arg!r}')
             if not (np.asarray(lo) <= np.asarray(hi)).all():
@@ -410,10 +545,52 @@ def _count(value: object) -> int | None:
     return None
 
 
-def parse_spec(doc: object, name: str = 'sweep') -> Spec:
+def _control_models(scenario: dict, axes: dict, base: Path | None) -> None:
+    """Read every ``control_model`` of the spec in place (a file relative to ``base``) as a
+    :class:`ControlModel`; refuse it beside ``mass_error``/``length_error``."""
+    where: list[str] = []
+    errors = [k for k in ('mass_error', 'length_error') if k in scenario or k in axes]
+
+    def read(at: str, value: object) -> ControlModel | None:
+        try:
+            return control_model_setting(value, base)
+        except ValueError as exc:
+            reason = str(exc)
+            for prefix in ('control_model: ', 'control_model '):
+                reason = reason.removeprefix(prefix)
+            raise SpecError(f'{at}: {reason}') from None
+
+    if 'control_model' in scenario:
+        where.append('scenario')
+        scenario['control_model'] = read('scenario.control_model', scenario['control_model'])
+    if 'control_model' in axes:
+        where.append('axes')
+        values = axes['control_model']
+        if not isinstance(values, list):
+            raise SpecError('axes.control_model: must be a list of models (params files or '
+                            f'mappings), got {values!r}')
+        axes['control_model'] = [read(f'axes.control_model[{i}]', v)
+                                 for i, v in enumerate(values)]
+    bundles = axes.get(VARIANT)
+    if isinstance(bundles, list):
+        for i, b in enumerate(bundles):
+            if isinstance(b, dict):
+                if 'control_model' in b:
+                    where.append(f'axes.{VARIANT}[{i}]')
+                    b['control_model'] = read(f'axes.{VARIANT}[{i}].control_model',
+                                              b['control_model'])
+                errors += [k for k in ('mass_error', 'length_error') if k in b]
+    if where and errors:
+        raise SpecError(f"control_model (in {where[0]}) and {errors[0]} both set the "
+                        "controller's model: give one (a control_model is the whole model; "
+                        'mass_error and length_error scale the robot)')
+
+
+def parse_spec(doc: object, name: str = 'sweep', base: str | Path | None = None) -> Spec:
     """Validate a spec document (the YAML's content); raises :class:`SpecError`. The work
     it asks for is bounded before anything is built: :data:`MAX_AXIS_VALUES` per axis,
-    :data:`MAX_SCENARIOS` in all; each scenario's length by :class:`Scenario`."""
+    :data:`MAX_SCENARIOS` in all; each scenario's length by :class:`Scenario`. ``base``:
+    the folder a ``control_model`` file is relative to (default: the current one)."""
     if not isinstance(doc, dict):
         raise SpecError(f'a spec is a mapping with keys {", ".join(_TOP)}, got '
                         f'{type(doc).__name__}')
@@ -429,6 +606,10 @@ def parse_spec(doc: object, name: str = 'sweep') -> Spec:
                 lo <= value <= MAX_SCENARIOS):
             raise SpecError(f'{key} must be an integer in [{lo}, {MAX_SCENARIOS}], got '
                             f'{value!r}')
+    margins = doc.get('margins', False)
+    if not isinstance(margins, bool):
+        raise SpecError(f'margins must be true or false (true: add the stability-margin '
+                        f'columns), got {margins!r}')
     if kind == 'grid' and 'samples' in doc:
         raise SpecError('samples is for sweep: random (a grid runs every combination)')
     scenario, axes = doc.get('scenario') or {}, doc.get('axes') or {}
@@ -453,12 +634,17 @@ def parse_spec(doc: object, name: str = 'sweep') -> Spec:
             sizes = ' x '.join(f'{k} {n}' for k, n in counts.items() if n is not None)
             raise SpecError(f'the grid has {total} scenarios ({sizes}), more than '
                             f'{MAX_SCENARIOS}')
+    scenario, axes = dict(scenario), dict(axes)
+    if VARIANT in axes and isinstance(axes[VARIANT], list):
+        axes[VARIANT] = [dict(b) if isinstance(b, dict) else b for b in axes[VARIANT]]
+    _control_models(scenario, axes, None if base is None else Path(base))
     fixed = {k: _check_setting(f'scenario.{k}', k, v) for k, v in scenario.items()}
     taken = set(scenario) | set(axes)
     parsed = {k: (_variants(kind, v, taken) if k == VARIANT else _axis(kind, k, v))
               for k, v in axes.items()}
     spec = Spec(name=str(doc.get('name', name)), question=str(doc.get('question', '')),
-                kind=kind, scenario=fixed, axes=parsed, samples=samples, seed=seed)
+                kind=kind, scenario=fixed, axes=parsed, samples=samples, seed=seed,
+                margins=margins)
     return replace(spec, plot=_plot_spec(doc.get('plot'), spec))
 
 
@@ -533,7 +719,12 @@ def _plot_spec(value: object, spec: Spec) -> PlotSpec | None:
         raise SpecError(f'plot: y must be a column or a list of columns, got {y!r}')
     cols = [value.get('x'), *y] + ([value['by']] if value.get('by') is not None else [])
     for c in cols:
-        _known('plot: column ', c, COLUMNS)
+        if c in MARGIN_COLUMNS and not spec.margins:
+            raise SpecError(f"plot: column {c!r} needs 'margins: true' (the margin columns "
+                            'are computed only when asked)')
+        if c in MODEL_COLUMNS and not spec.uses_control_model:
+            raise SpecError(f"plot: column {c!r} needs a control_model setting")
+        _known('plot: column ', c, spec.columns)
     if not y:
         raise SpecError('plot: y must name at least one column')
     ps = PlotSpec(x=str(value['x']), y=tuple(y), by=value.get('by'))
@@ -592,7 +783,7 @@ def load_spec(path: str | Path) -> Spec:
     except yaml.YAMLError as exc:
         first = str(exc).strip().splitlines()
         raise SpecError(f"not YAML: {' '.join(s.strip() for s in first)}") from None
-    return parse_spec(doc, Path(path).stem)
+    return parse_spec(doc, Path(path).stem, Path(path).parent)
 
 
 def shipped_specs() -> dict[str, Path]:
