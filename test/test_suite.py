@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 from conftest import NewRun, count, events, statuses, values
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rosgraph_msgs.msg import Clock
@@ -316,6 +316,7 @@ def test_a_motion_cut_by_a_simulator_restart_is_planned_again_and_finished(ros, 
     start_suite(launch)
     states, trajs, goals = connect(ros)
     diags = ros.collect(DiagnosticArray, '/diagnostics')
+    verdicts = ros.collect(DiagnosticStatus, 'arm_controller/trajectory_status')
 
     def planner_event(kind):
         return [values(s) for s in events(diags, '/planner', kind)]
@@ -330,8 +331,13 @@ def test_a_motion_cut_by_a_simulator_restart_is_planned_again_and_finished(ros, 
     simulator.stop(signal.SIGKILL)
     k = len(states)
     launch('simulator', params_file=CONFIG, params={'timing_mode': 'lockstep'})
-    replanned = ros.wait_for(lambda: planner_event('replanned'), timeout=30,
-                             what='the planner to plan the goal again')[0]
+    try:
+        replanned = ros.wait_for(lambda: planner_event('replanned'), timeout=30,
+                                 what='the planner to plan the goal again')[0]
+    except pytest.fail.Exception as exc:  # what did the controller say, and the planner?
+        said = [(s.message, {kv.key: kv.value for kv in s.values}) for s in verdicts]
+        planner = [(s.message, values(s)) for s in statuses(diags, '/planner')][-6:]
+        pytest.fail(f'{exc}; trajectory_status seen here: {said}; planner: {planner}')
     assert float(replanned['goal_x']) == PF[0] and float(replanned['goal_y']) == PF[1]
 
     new_run = NewRun(states, k)
