@@ -232,6 +232,12 @@ class ControllerNode(Node):
             self.early = (msg, time.monotonic())
             return
         t_now, q, qd = self.latest
+        if self.active_msg is not None and _stamp_ns(msg) != 0 and msg == self.active_msg:
+            # The very trajectory we execute, sent again (its sender did not read our
+            # verdict in time): executed as it is, and the verdict said again.
+            self._status(msg, DiagnosticStatus.OK, 'accepted: the same trajectory again, '
+                         'executed as before', _stamp(msg))
+            return
         start = _stamp(msg) or t_now
         points = [TrajectoryPoint(p.time_from_start.sec + p.time_from_start.nanosec * 1e-9,
                                   p.positions, p.velocities, p.accelerations)

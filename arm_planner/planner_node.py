@@ -246,6 +246,11 @@ HOLD_WAIT = 2.0  # s (wall): a hold reply later than this: plan without it
 CONTROLLER_WAIT = 5.0  # s (wall): how long a plan waits for a controller to subscribe
 STATE_WAIT = 5.0  # s (wall): how long a goal waits for the first joint state
 CONFIRM_WAIT = 1.0  # s (wall): re-send a trajectory no controller confirmed after this
+#: Sends of the very same trajectory, time held, to a controller that gives verdicts
+#: before it is planned again with time running: a loaded machine delayed the verdict
+#: 1-2 s; a controller restarted meanwhile has no state while time is held, so it can
+#: only take the trajectory once time runs again.
+SAME_SENDS = 3
 SENDS = 10  # at most this many sends of one trajectory (10 s: a controller restarted on
 # a loaded machine took over 5 s to start and confirm)
 
@@ -278,6 +283,7 @@ class PlannerNode(Node):
         self.path_pub = self.create_publisher(Path, 'planner/path', latched_qos())
         self.create_subscription(JointState, 'joint_states', self._on_joint_state, 10)
         self.create_subscription(PoseStamped, 'goal_pose', self._on_goal, 10)
+        self.status_topic = self.resolve_topic_name('arm_controller/trajectory_status')
         self.create_subscription(DiagnosticStatus, 'arm_controller/trajectory_status',
                                  self._on_trajectory_status, 10)
         self.sent: dict | None = None  # the last trajectory, until a controller confirms it
@@ -572,8 +578,11 @@ class PlannerNode(Node):
     def _confirm_sent(self) -> None:
         """Send the goal again until a controller confirms its trajectory: a publish can
         reach no live controller (one that just restarted and is not matched yet, while one
-        that left still counts as a subscriber). It is planned again from the latest state
-        (time may have moved on meanwhile); at a standstill that is the same plan."""
+        that left still counts as a subscriber). A plan made at a hold, to a controller that
+        gives verdicts (a trajectory_status publisher is in the graph), goes again as it is,
+        time still held, up to :data:`SAME_SENDS` sends; after that, or any other plan, it is
+        planned again from the latest state (time may have moved on meanwhile); at a
+        standstill that is the same plan."""
         sent = self.sent
         if sent is None or time.monotonic() - sent['at'] < CONFIRM_WAIT:
             return
@@ -584,6 +593,18 @@ class PlannerNode(Node):
             self.diag.problem('goal_unsent', f'goal ({goal[0]:.4f}, {goal[1]:.4f}) m dropped: '
                               f"no controller confirmed its trajectory in {sent['sends']} "
                               f'sends, {CONFIRM_WAIT:g} s apart', goal_x=goal[0], goal_y=goal[1])
+            return
+        if (sent['stamp'] != 0 and sent['sends'] < SAME_SENDS
+                and self.count_publishers(self.status_topic) > 0):
+            # A controller that says what became of each trajectory is there (arm_sim's):
+            # it may only be slow to answer (a loaded machine). The very same trajectory
+            # again, time still held: how long the answer took cannot change the run.
+            sent['sends'] += 1
+            sent['at'] = time.monotonic()
+            self.traj_pub.publish(sent['msg'])
+            self.get_logger().info(f"no verdict on the trajectory to {sent['goal']} in "
+                                   f'{CONFIRM_WAIT:g} s: the same trajectory sent again (send '
+                                   f"{sent['sends']} of {SENDS})")
             return
         self.sent = None
         # A controller that does not confirm (not arm_sim's) must not keep time held:
@@ -629,7 +650,7 @@ class PlannerNode(Node):
         msg = trajectory_message(plan, self.joint_names, start_ns)
         self.traj_pub.publish(msg)
         self.sent = {'stamp': start_ns, 'at': time.monotonic(), 'sends': sends + 1,
-                     'goal': goal}
+                     'goal': goal, 'msg': msg}
         sec, nanosec = divmod(start_ns, 1_000_000_000)
         self.path_pub.publish(path_message(plan, self.params['base_frame'],
                                            Time(sec=sec, nanosec=nanosec)))

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import statuses, values
+from conftest import count, statuses, values
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import JointState
@@ -247,9 +247,12 @@ def bringup_run(ros, tmp_path, mode: str) -> tuple:
                      what='the planner ready')
         goals = ros.publisher(PoseStamped, 'goal_pose')
         ros.wait_matched(goals, ['planner'])
-        before = accepted(diags)
+        # Counted from the controller's periodic reports too: its one immediate report of
+        # the acceptance can go out before we are matched with a controller started last.
+        before = count(diags, '/controller', 'trajectory_accepted')
         goals.publish(goal(*PF))
-        ros.wait_for(lambda: accepted(diags) > before, timeout=30, what='the plan accepted')
+        ros.wait_for(lambda: count(diags, '/controller', 'trajectory_accepted') > before,
+                     timeout=30, what='the plan accepted')
         assert ros.set_params('/simulator', pause_at=6.0)[0].successful
         ros.wait_for(lambda: paused_at(6.0), timeout=90, what='the pause at t = 6 s')
     except pytest.fail.Exception as exc:  # say what the nodes said
