@@ -53,3 +53,18 @@ def claim_domain(start: int, first: int = 1, last: int = 232) -> int:
         _claimed.append(sock)
         return domain
     return start
+
+
+def stop_child(proc, sig: int = signal.SIGINT, timeout: float = 10.0) -> int:
+    """Stop the child ``proc`` (a :class:`subprocess.Popen`): send ``sig`` if it still
+    runs, wait up to ``timeout`` s, then kill it; returns its exit code."""
+    import subprocess
+
+    if proc.poll() is None:
+        proc.send_signal(sig)
+    try:
+        proc.wait(timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+    return proc.returncode

@@ -22,7 +22,7 @@ import sys
 import time
 from pathlib import Path
 
-from arm_common.process import PARENT_ENV
+from arm_common.process import PARENT_ENV, stop_child
 
 MODULES = {
     'simulator': 'arm_dynamics.simulator_node',
@@ -158,14 +158,7 @@ class NodeProcess:
 
     def stop(self, sig: int = signal.SIGINT, timeout: float = 10.0) -> int:
         """Send ``sig``, wait up to ``timeout`` s, then kill; returns the exit code."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-            try:
-                self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        return self.proc.returncode
+        return stop_child(self.proc, sig, timeout)
 
     def output(self) -> str:
         return self.log_path.read_text(errors='replace') if self.log_path else ''

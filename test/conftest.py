@@ -9,6 +9,7 @@ fixed sleeps).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -128,6 +129,21 @@ def leaves_nothing_behind():
         Path('/dev/shm', name).unlink(missing_ok=True)
     kept = (shm_files() - shm_before) & shm_holders(session_only=True) - own_shm_files()
     assert not kept, f'/dev/shm files still held by processes of this session: {sorted(kept)}'
+
+
+@contextlib.contextmanager
+def domain_held_elsewhere(start: int):
+    """Another process (not this test session) holding a ROS domain as an arm_sim run does
+    (:func:`arm_common.process.claim_domain` from ``start``); yields (domain, process)."""
+    hold = ('import sys; from arm_common.process import claim_domain; '
+            f'print(claim_domain({start}), flush=True); sys.stdin.read()')
+    other = subprocess.Popen([sys.executable, '-c', hold], stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, text=True)
+    try:
+        yield int(other.stdout.readline()), other  # type: ignore[union-attr]
+    finally:
+        other.stdin.close()  # type: ignore[union-attr]
+        other.wait(30)
 
 
 def goal_msg(x: float, y: float, frame: str = 'base_link'):

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import statuses, values
+from conftest import domain_held_elsewhere, statuses, values
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import JointState
 
@@ -299,17 +299,9 @@ def test_demo_energy_is_the_change_in_mechanical_energy_to_a_nanojoule(demo_runs
 def test_a_demo_on_a_domain_another_run_holds_is_refused_in_one_line(tmp_path):
     """Two demos on one explicit --domain-id both failed with misleading reasons (timed
     out, too near a singularity): the second is refused at once, naming the first."""
-    hold = ('import sys; from arm_common.process import claim_domain; '
-            'print(claim_domain(140), flush=True); sys.stdin.read()')
-    other = subprocess.Popen([sys.executable, '-c', hold], stdin=subprocess.PIPE,
-                             stdout=subprocess.PIPE, text=True)
-    try:
-        domain = int(other.stdout.readline())  # type: ignore[union-attr]
+    with domain_held_elsewhere(140) as (domain, other):
         res = subprocess.run(demo_command(tmp_path / 'out', domain), capture_output=True,
                              text=True, timeout=120, env=node_env(domain))
-    finally:
-        other.stdin.close()  # type: ignore[union-attr]
-        other.wait(30)
     assert res.returncode == 2, res.stdout + res.stderr
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1, lines

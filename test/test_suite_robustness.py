@@ -16,10 +16,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import domain_held_elsewhere
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from sensor_msgs.msg import JointState
 
 from arm_bag.reader import read_bag
+from arm_common.process import stop_child
 from arm_dynamics import TwoLinkArm
 from arm_sim.client import Event, goal_refusal, stamp_of
 from arm_sim.launcher import config_file, node_env
@@ -70,15 +72,9 @@ class Cli:
             ros.wait_for(seen, timeout, repr(text))
 
     def stop(self, sig: int = signal.SIGINT, timeout: float = 60.0) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-        try:
-            self.proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
+        code = stop_child(self.proc, sig, timeout)
         self.reader.join(10)
-        return self.proc.returncode
+        return code
 
 
 def children(pid: int) -> dict[int, str]:
@@ -205,19 +201,11 @@ def test_bringup_goes_on_without_a_live_view_that_exits_and_says_so(ros, tmp_pat
 
 
 def test_bringup_on_a_domain_another_run_holds_is_refused_in_one_line(tmp_path):
-    hold = ('import sys; from arm_common.process import claim_domain; '
-            'print(claim_domain(160), flush=True); sys.stdin.read()')
-    other = subprocess.Popen([sys.executable, '-c', hold], stdin=subprocess.PIPE,
-                             stdout=subprocess.PIPE, text=True)
-    try:
-        domain = int(other.stdout.readline())  # type: ignore[union-attr]
+    with domain_held_elsewhere(160) as (domain, other):
         res = subprocess.run([sys.executable, '-m', 'arm_sim.cli', 'bringup', '--out',
                               str(tmp_path / 'run'), '--domain-id', str(domain)],
                              capture_output=True, text=True, timeout=120,
                              env=node_env(domain))
-    finally:
-        other.stdin.close()  # type: ignore[union-attr]
-        other.wait(30)
     assert res.returncode == 2, res.stdout + res.stderr
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(
