@@ -253,9 +253,16 @@ def test_lost_messages_are_counted_per_topic_from_the_publisher_sequence(ros, la
                  pub.get_subscription_count() >= 1, 20, 'the recorder to subscribe')
     # The recorder subscribes again best effort once it sees this publisher.
     ros.wait_for(lambda: 'best effort' in proc.output(), 20,
-                 'the recorder to match the best-effort publisher')
+                 'the recorder to subscribe again best effort')
+    ros.wait_matched(pub, ['recorder'], 20)
     n = 5000
     data = [serialize_message(state(i)) for i in range(n)]
+    # The recorder counts from the first message it takes (what a publisher that existed
+    # before it settled sent earlier is not its to count): once it has taken one, every
+    # later publication is kept or counted, so the burst's n all are.
+    ros.wait_for(lambda: int(recorder_status(diags).get('received', 0)) >= 1
+                 or (pub.publish(data[0]) and False), 20,
+                 'the recorder to take a first message')
     for raw in data:
         pub.publish(raw)
     last = data[-1]
