@@ -35,6 +35,7 @@ setup(
         'core': ['numpy', 'scipy', 'mcap', 'pyyaml', 'matplotlib', 'zstandard', 'lz4'],
         'test': ['pytest', 'pytest-timeout', 'ruff', 'mypy', 'colcon-common-extensions',
                  'rosbags', 'mcap-ros2-support', 'dask', 'distributed', 'yourdfpy', 'pin',
+                 'mujoco',  # test/test_geared_motors.py: the reflected rotor inertia
                  'foxglove-sdk', 'websockets'],  # test/test_live.py: server and client
         'bench': ['pin', 'mujoco'],
         'dask': ['dask', 'distributed'],

@@ -30,6 +30,15 @@ inertia about the elbow by ``p l2`` and ``p l2^2``), so its mass follows from th
 of the base parameters (:func:`payload_mass`). With ``g0 = 0``, MX1R does not enter the
 dynamics: it is then held at its nominal value.
 
+**Geared motors are refused.** A motor behind gear ``n_i`` with rotor inertia ``Jm_i`` and
+damping ``Bm_i`` (``TwoLinkArm``'s ``motor_inertias``, ``motor_damping``) adds ``n_i^2
+Jm_i q_i''`` and ``n_i^2 Bm_i q_i'`` to joint ``i``'s torque. Joint 1's rotor would hide in
+ZZ1R and the motor damping in FV1/FV2, but joint 2's rotor inertia adds ``A2 q2''`` to the
+second row alone, which no column above has: the fit would be biased, not exact. So
+:func:`base_parameters` and :func:`identified_arm` refuse an arm with a non-zero motor
+inertia or damping (:class:`IdentificationError` naming the values); gear ratios alone
+change nothing and are carried over.
+
 **The estimation form.** The data are what the simulator publishes (and the recorder
 keeps): states ``(q_k, q'_k)`` at ``t_k`` and the effort ``tau_k`` applied, held, over the
 control period ``[t_(k-1), t_k]`` (:meth:`~arm_dynamics.simulation.SimulatorCore.
@@ -115,9 +124,28 @@ class IdentificationError(ValueError):
     """The data cannot determine the parameters; the message (one line) says why."""
 
 
+def _without_motors(arm: TwoLinkArm, what: str) -> None:
+    """Raise :class:`IdentificationError` if ``arm`` (named ``what``) has a motor with
+    inertia or damping: the regressor has no column for them (module docstring)."""
+    if any(arm.motor_inertias) or any(arm.motor_damping):
+        raise IdentificationError(
+            f'{what} has geared motors (motor_inertias={list(arm.motor_inertias)} kg m^2, '
+            f'motor_damping={list(arm.motor_damping)} N m s/rad, gear_ratios='
+            f'{list(arm.gear_ratios)}): identification models the links only (no regressor '
+            "column for joint 2's reflected rotor inertia), so it refuses them; give an arm "
+            'with motor_inertias and motor_damping 0')
+
+
 def base_parameters(arm: TwoLinkArm) -> np.ndarray:
     """The base parameters (6,) of ``arm`` in the order of :data:`NAMES` [kg m^2, kg m,
-    kg m^2, kg m, N m s/rad, N m s/rad]."""
+    kg m^2, kg m, N m s/rad, N m s/rad].
+
+    Raises
+    ------
+    IdentificationError
+        ``arm`` has a motor with inertia or damping (module docstring).
+    """
+    _without_motors(arm, 'the arm')
     (l1, _), (c1, c2) = arm.link_lengths, arm.com_distances
     (m1, m2), (i1, i2) = arm.link_masses, arm.link_inertias
     return np.array([i1 + m1 * c1 ** 2 + m2 * l1 ** 2, m1 * c1 + m2 * l1,
@@ -458,8 +486,10 @@ def identified_arm(values, nominal: TwoLinkArm, payload: float = 0.0,
     IdentificationError
         No physical arm has these groupings with those masses (a negative inertia or
         centre-of-gravity distance, or friction below zero by more than that), naming
-        the value.
+        the value; or ``nominal`` has a motor with inertia or damping (module docstring;
+        its gear ratios alone are carried over).
     """
+    _without_motors(nominal, 'the nominal arm')
     v = np.asarray(values, dtype=float)
     l1, _ = nominal.link_lengths
     m1, m2 = nominal.link_masses[0], nominal.link_masses[1] + payload
@@ -486,6 +516,7 @@ def identified_arm(values, nominal: TwoLinkArm, payload: float = 0.0,
     try:
         return TwoLinkArm(link_lengths=nominal.link_lengths, com_distances=(clip[0], clip[1]),
                           link_masses=(m1, m2), link_inertias=(clip[2], clip[3]),
-                          gravity=nominal.gravity, joint_damping=(clip[4], clip[5]))
+                          gravity=nominal.gravity, joint_damping=(clip[4], clip[5]),
+                          gear_ratios=nominal.gear_ratios)
     except ValueError as exc:
         raise IdentificationError(f'the identified arm is not a valid model: {exc}') from None

@@ -5,13 +5,21 @@ this is that model, and the proof that the robot-model seam (:mod:`arm_dynamics.
 carries any robot. Every dynamic quantity comes from recursive Newton-Euler
 (:class:`~arm_dynamics.newton_euler.NewtonEulerChain`), never from a hand-written formula:
 
-* ``tau = ID(q, qd, qdd)`` is one RNEA pass (gravity and damping included);
+* ``tau = ID(q, qd, qdd)`` is one RNEA pass (gravity and damping included) plus the
+  rotors' ``A qdd``;
 * ``D(q)`` column ``j`` is ``ID(q, 0, e_j)`` of the same chain without gravity and damping
-  (all n columns in one broadcast pass);
+  (all n columns in one broadcast pass), plus ``A`` on the diagonal;
 * ``g(q) = ID(q, 0, 0)`` without damping; the bias ``h = C qd + g + B qd = ID(q, qd, 0)``;
 * forward dynamics is one solve, ``qdd = D^-1 (tau - h)``;
 * ``C(q, qd)`` (Christoffel form) from ``dD/dq`` by complex step (exact to rounding), for
   the analyses that want the matrix itself.
+
+Geared motors (as :class:`~arm_dynamics.two_link.TwoLinkArm`): joint ``i`` driven through
+a gear of ratio ``n_i`` by a rotor of inertia ``Jm_i`` and viscous friction ``Bm_i`` (motor
+side) gets the reflected inertia ``A_i = n_i^2 Jm_i`` on the diagonal of ``D`` (``A =
+diag(armature)``) and ``n_i^2 Bm_i`` added to its damping; torques and states stay
+joint-side. Spong, Hutchinson, Vidyasagar, *Robot Modeling and Control*, Dynamics chapter
+(reflected rotor inertia) and Independent Joint Control chapter (actuator dynamics).
 
 Convention (the contract's): ``q1`` from the +x axis, ``q_i`` relative to link ``i-1``,
 gravity along -y, potential energy zero at the base height. With n = 2 and the same
@@ -55,8 +63,16 @@ class PlanarChain:
         definite; a set for which it is singular with the links aligned is refused.
     gravity : m/s^2, >= 0, acting along -y.
     joint_damping : (n,) N m s/rad, each >= 0 (default zeros).
+    gear_ratios : (n,) [-], each > 0 (default ones)
+        Motor turns per joint turn.
+    motor_inertias : (n,) kg m^2, each >= 0 (default zeros)
+        Rotor inertias, motor side: ``n_i^2 Jm_i`` (:attr:`armature`) on ``D``'s diagonal.
+    motor_damping : (n,) N m s/rad, each >= 0 (default zeros)
+        Motor viscous friction, motor side: ``n_i^2 Bm_i`` added to ``joint_damping``
+        (:attr:`total_damping`).
 
-    Every state-taking method accepts one state (n,) or a batch (..., n).
+    Every state-taking method accepts one state (n,) or a batch (..., n); torques are
+    joint-side.
     """
 
     link_lengths: Sequence[float] = (1.0, 0.8)
@@ -65,13 +81,17 @@ class PlanarChain:
     link_inertias: Sequence[float] = (0.1, 0.08)
     gravity: float = 9.81
     joint_damping: Sequence[float] | None = None
+    gear_ratios: Sequence[float] | None = None
+    motor_inertias: Sequence[float] | None = None
+    motor_damping: Sequence[float] | None = None
     _full: NewtonEulerChain = field(init=False, repr=False, compare=False)
     _inertial: NewtonEulerChain = field(init=False, repr=False, compare=False)
     _gravity: NewtonEulerChain = field(init=False, repr=False, compare=False)
+    _armature: np.ndarray = field(init=False, repr=False, compare=False)
 
     #: The constructor arguments, which are also the robot parameters' names.
     PARAMETERS = ('link_lengths', 'com_distances', 'link_masses', 'link_inertias', 'gravity',
-                  'joint_damping')
+                  'joint_damping', 'gear_ratios', 'motor_inertias', 'motor_damping')
 
     def __post_init__(self) -> None:
         lengths = self.link_lengths
@@ -79,7 +99,10 @@ class PlanarChain:
                 lengths, (Sequence, np.ndarray)) or len(lengths) < 1:
             raise ValueError(f'link_lengths must be a non-empty list, got {lengths!r}')
         n = len(lengths)
-        damping = (0.0,) * n if self.joint_damping is None else self.joint_damping
+
+        def given(value: Any, default: float) -> Any:
+            return (default,) * n if value is None else value
+
         values: dict[str, Any] = {
             'link_lengths': finite_tuple('link_lengths', lengths, n, minimum=0.0, strict=True),
             'com_distances': finite_tuple('com_distances', self.com_distances, n, minimum=0.0),
@@ -87,14 +110,24 @@ class PlanarChain:
                                         strict=True),
             'link_inertias': finite_tuple('link_inertias', self.link_inertias, n, minimum=0.0),
             'gravity': finite_scalar('gravity', self.gravity, minimum=0.0),
-            'joint_damping': finite_tuple('joint_damping', damping, n, minimum=0.0),
+            'joint_damping': finite_tuple('joint_damping', given(self.joint_damping, 0.0), n,
+                                          minimum=0.0),
+            'gear_ratios': finite_tuple('gear_ratios', given(self.gear_ratios, 1.0), n,
+                                        minimum=0.0, strict=True),
+            'motor_inertias': finite_tuple('motor_inertias', given(self.motor_inertias, 0.0),
+                                           n, minimum=0.0),
+            'motor_damping': finite_tuple('motor_damping', given(self.motor_damping, 0.0), n,
+                                          minimum=0.0),
         }
         for name, value in values.items():
             object.__setattr__(self, name, value)
+        armature = np.array(self.armature)
+        armature.setflags(write=False)
+        object.__setattr__(self, '_armature', armature)
         geometry = {k: values[k] for k in ('link_lengths', 'com_distances', 'link_masses',
                                            'link_inertias')}
         object.__setattr__(self, '_full', NewtonEulerChain(
-            **geometry, gravity=values['gravity'], joint_damping=values['joint_damping']))
+            **geometry, gravity=values['gravity'], joint_damping=self.total_damping))
         object.__setattr__(self, '_inertial', NewtonEulerChain(**geometry, gravity=0.0))
         object.__setattr__(self, '_gravity', NewtonEulerChain(**geometry,
                                                               gravity=values['gravity']))
@@ -131,15 +164,37 @@ class PlanarChain:
         """Number of joints n."""
         return len(self.link_lengths)
 
+    @property
+    def armature(self) -> tuple[float, ...]:
+        """``n_i^2 Jm_i`` [kg m^2] per joint: the rotor inertias reflected to the joints, on
+        the diagonal of ``D(q)`` (MuJoCo's joint ``armature``)."""
+        assert self.gear_ratios is not None and self.motor_inertias is not None
+        return tuple(r * r * j for r, j in zip(self.gear_ratios, self.motor_inertias))
+
+    @property
+    def total_damping(self) -> tuple[float, ...]:
+        """``joint_damping_i + n_i^2 Bm_i`` [N m s/rad] per joint: the viscous friction the
+        joint sees (``B``)."""
+        assert (self.joint_damping is not None and self.gear_ratios is not None
+                and self.motor_damping is not None)
+        return tuple(b + r * r * f for b, r, f in zip(self.joint_damping, self.gear_ratios,
+                                                      self.motor_damping))
+
     # ------------------------------------------------------------------ dynamics
     def inverse_dynamics(self, q, qd, qdd) -> np.ndarray:
-        """tau [N m] = D qdd + C qd + g + B qd; shapes (n,) or (..., n)."""
-        return self._full.inverse_dynamics(q, qd, qdd)
+        """tau [N m] = D qdd + C qd + g + B qd; shapes (n,) or (..., n): the links' RNEA
+        pass (damping ``B`` total) plus the rotors' ``A qdd``."""
+        n = self.n_dof
+        q, qd, qdd = (state_array(name, v, n) for name, v in (('q', q), ('qd', qd),
+                                                             ('qdd', qdd)))
+        return self._full.unchecked(q, qd, qdd) + self._armature * qdd
 
     def inverse_dynamics_complex(self, q, qd, qdd) -> np.ndarray:
         """:meth:`inverse_dynamics` carrying complex ``q`` and ``qd`` through (the same
         Newton-Euler pass), for complex-step derivatives; unchecked."""
-        return self._full.unchecked(np.asarray(q), np.asarray(qd), np.asarray(qdd))
+        qdd = np.asarray(qdd)
+        return (self._full.unchecked(np.asarray(q), np.asarray(qd), qdd)
+                + self._armature * qdd)
 
     def linearize(self, q, qd, tau, period: float | None = None
                   ) -> tuple[np.ndarray, np.ndarray]:
@@ -150,14 +205,16 @@ class PlanarChain:
         return linearized(self, q, qd, tau, period)
 
     def mass_matrix(self, q) -> np.ndarray:
-        """D(q), kg m^2: (n, n) or (..., n, n); column j is ID(q, 0, e_j) without gravity."""
+        """D(q), kg m^2: (n, n) or (..., n, n); column j is ID(q, 0, e_j) without gravity,
+        plus the reflected rotor inertias (:attr:`armature`) on the diagonal."""
         return self._columns(state_array('q', q, self.n_dof))
 
     def _columns(self, q: np.ndarray) -> np.ndarray:
         n = self.n_dof
         eye = np.eye(n, dtype=q.dtype)
         cols = self._inertial.unchecked(q[..., None, :], np.zeros(n), eye)
-        return np.swapaxes(cols, -1, -2)  # row j of cols is column j of D; D is symmetric
+        # row j of cols is column j of D; D is symmetric
+        return np.swapaxes(cols, -1, -2) + np.diag(self._armature)
 
     def gravity_vector(self, q) -> np.ndarray:
         """g(q) = dPE/dq, N m: (n,) or (..., n)."""
@@ -165,8 +222,8 @@ class PlanarChain:
         return self._gravity.inverse_dynamics(q, np.zeros(n), np.zeros(n))
 
     def damping_torque(self, qd) -> np.ndarray:
-        """B qd, N m."""
-        return state_array('qd', qd, self.n_dof) * np.asarray(self.joint_damping)
+        """B qd, N m, ``B = diag(joint_damping + n^2 Bm)`` (:attr:`total_damping`)."""
+        return state_array('qd', qd, self.n_dof) * np.asarray(self.total_damping)
 
     def bias(self, q, qd) -> np.ndarray:
         """h = C(q, qd) qd + g(q) + B qd [N m], one Newton-Euler pass."""
@@ -208,7 +265,8 @@ class PlanarChain:
         return q, qd
 
     def energy(self, q, qd) -> tuple[np.ndarray, np.ndarray]:
-        """(kinetic, potential) energy [J]; potential zero at the base height."""
+        """(kinetic, potential) energy [J]; potential zero at the base height. Kinetic
+        ``qd^T D(q) qd / 2``, the rotors' ``n^2 Jm qd^2 / 2`` included."""
         qd = state_array('qd', qd, self.n_dof)
         kinetic = 0.5 * np.einsum('...i,...ij,...j->...', qd, self.mass_matrix(q), qd)
         q = state_array('q', q, self.n_dof)

@@ -104,6 +104,15 @@ ROBOT_PARAMS: tuple[ParamSpec, ...] = (
            minimum=0.0, maximum=100.0),
     _model('joint_damping', 'Viscous joint friction', 'N m s/rad', minimum=0.0,
            maximum=1e4),
+    _model('gear_ratios', "Gear reduction of each joint's motor: motor turns per joint turn "
+           '(commands stay joint-side torques)', '', minimum=0.0, strict_min=True,
+           maximum=1e4),
+    _model('motor_inertias', 'Rotor inertia of each joint motor, motor side; the joint sees '
+           'gear_ratio^2 times it added to the diagonal of D(q) (reflected inertia, '
+           'armature)', 'kg m^2', minimum=0.0, maximum=1e4),
+    _model('motor_damping', 'Viscous friction of each joint motor, motor side; the joint '
+           'sees gear_ratio^2 times it added to joint_damping', 'N m s/rad', minimum=0.0,
+           maximum=1e4),
     _pair('effort_limits', DEFAULT_EFFORT, 'Joint torque limits (applied torque is clipped)',
           'N m', minimum=0.0, strict_min=True, maximum=1e6),
     _pair('position_limits_lower', DEFAULT_POSITION_LOWER,

@@ -2,16 +2,31 @@
 
 Convention (the contract's): ``q1`` is measured from the +x axis, ``q2`` relative to link 1,
 gravity acts along -y, and the potential energy is zero at the base height. The equations
-of motion are ``D(q) qdd + C(q, qd) qd + g(q) + B qd = tau`` with ``B = diag(joint_damping)``.
+of motion are ``D(q) qdd + C(q, qd) qd + g(q) + B qd = tau`` with ``B = diag(joint_damping
++ n^2 Bm)``.
 
-With ``a = m1 lc1^2 + m2 (l1^2 + lc2^2) + I1 + I2``, ``b = m2 l1 lc2`` and
-``d = m2 lc2^2 + I2``::
+Geared motors: joint ``i`` is driven through a gear of ratio ``n_i`` (``gear_ratios``, motor
+turns per joint turn) by a motor of rotor inertia ``Jm_i`` (``motor_inertias``) and viscous
+friction ``Bm_i`` (``motor_damping``), both on the motor side. Torques stay joint-side
+(``tau_i`` = ``n_i`` times the motor torque). The rotor turns at ``n_i qd_i``, so it adds
+``n_i^2 Jm_i qd_i^2 / 2`` to the kinetic energy and ``n_i^2 Bm_i qd_i`` to the joint's
+friction: the *reflected* inertia ``A_i = n_i^2 Jm_i`` (MuJoCo's joint ``armature``,
+Pinocchio's ``model.armature``) sits on the diagonal of ``D`` and ``n_i^2 Bm_i`` adds to
+``joint_damping`` (rotor gyroscopic terms neglected, as usual for high ratios). Defaults
+``n = 1``, ``Jm = Bm = 0``: no motors. Spong, Hutchinson, Vidyasagar, *Robot Modeling and
+Control*, Dynamics chapter (the actuator's reflected inertia in ``D(q)``) and Independent
+Joint Control chapter (actuator dynamics, ``J = Jm + Jl / n^2`` seen from the motor).
+
+With ``a = m1 lc1^2 + m2 (l1^2 + lc2^2) + I1 + I2 + A1``, ``b = m2 l1 lc2``,
+``d = m2 lc2^2 + I2`` and ``e = d + A2``::
 
     D = [[a + 2 b cos q2, d + b cos q2],
-         [d + b cos q2,   d          ]]
+         [d + b cos q2,   e          ]]
     C = b sin q2 [[-qd2, -(qd1 + qd2)],      (Christoffel form: D' - 2C is skew)
                   [ qd1,  0          ]]
     g = [(m1 lc1 + m2 l1) g0 cos q1 + m2 lc2 g0 cos(q1 + q2), m2 lc2 g0 cos(q1 + q2)]
+
+(without motors ``e = d``: ``D22`` is the constant part of ``D12``; with them it is not.)
 
 Every state-taking method accepts one state, shape ``(2,)``, or a batch, shape ``(N, 2)``
 (any leading shape broadcasts). Single states of (2,) arrays take a pure-float hot path,
@@ -51,7 +66,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -87,8 +102,13 @@ def _pair(name: str, x: object) -> Pair | None:
 def _make_accel(k: tuple[float, ...], cos: Callable, sin: Callable) -> Callable:
     """qdd(q1, q2, qd1, qd2, t1, t2) for one parameter set ``k``; with ``math`` functions it
     takes floats, with ``numpy`` ones arrays: the single formula both paths use. Solves
-    ``D qdd = tau - C qd - g - B qd`` (2x2, closed form)."""
-    a, b, d, g1, g2, b1, b2 = k
+    ``D qdd = tau - C qd - g - B qd`` (2x2, closed form).
+
+    ``k = (a, b, d, e, g1, g2, b1, b2)``: the lumped constants of the module docstring
+    (``D11 = a + 2 b cos q2``, ``D12 = d + b cos q2``, ``D22 = e``, both armatures
+    included), ``g1 = (m1 lc1 + m2 l1) g0``, ``g2 = m2 lc2 g0`` [N m] and the joints' total
+    viscous damping ``b_i = joint_damping_i + n_i^2 Bm_i`` [N m s/rad]."""
+    a, b, d, e, g1, g2, b1, b2 = k
 
     def accel(q1, q2, qd1, qd2, t1, t2):
         c2 = cos(q2)
@@ -98,8 +118,8 @@ def _make_accel(k: tuple[float, ...], cos: Callable, sin: Callable) -> Callable:
         d12 = d + b * c2
         r1 = t1 + bs2 * qd2 * (2.0 * qd1 + qd2) - g1 * cos(q1) - gc12 - b1 * qd1
         r2 = t2 - bs2 * qd1 * qd1 - gc12 - b2 * qd2
-        det = d11 * d - d12 * d12
-        return (d * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
+        det = d11 * e - d12 * d12
+        return (e * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
 
     return accel
 
@@ -107,7 +127,7 @@ def _make_accel(k: tuple[float, ...], cos: Callable, sin: Callable) -> Callable:
 def _make_inverse(k: tuple[float, ...], cos: Callable, sin: Callable) -> Callable:
     """tau(q1, q2, qd1, qd2, qdd1, qdd2) = D qdd + C qd + g + B qd for one parameter set
     ``k``, term for term the left-hand side of :func:`_make_accel`'s equation."""
-    a, b, d, g1, g2, b1, b2 = k
+    a, b, d, e, g1, g2, b1, b2 = k
 
     def inverse(q1, q2, qd1, qd2, a1, a2):
         c2 = cos(q2)
@@ -116,7 +136,7 @@ def _make_inverse(k: tuple[float, ...], cos: Callable, sin: Callable) -> Callabl
         d12 = d + b * c2
         t1 = ((a + 2.0 * b * c2) * a1 + d12 * a2 - bs2 * qd2 * (2.0 * qd1 + qd2)
               + g1 * cos(q1) + gc12 + b1 * qd1)
-        t2 = d12 * a1 + d * a2 + bs2 * qd1 * qd1 + gc12 + b2 * qd2
+        t2 = d12 * a1 + e * a2 + bs2 * qd1 * qd1 + gc12 + b2 * qd2
         return t1, t2
 
     return inverse
@@ -132,7 +152,7 @@ def _make_step(k: tuple[float, ...]) -> Callable[..., tuple[float, float, float,
     ...)``, about twice as fast. No validation: callers pass finite floats, ``dt > 0`` and
     an int ``n_steps >= 1`` (:meth:`TwoLinkArm.step` checks them once at its boundary).
     """
-    a, b, d, g1, g2, b1, b2 = k
+    a, b, d, e, g1, g2, b1, b2 = k
     cos, sin = math.cos, math.sin
     b2x = 2.0 * b
 
@@ -149,8 +169,8 @@ def _make_step(k: tuple[float, ...]) -> Callable[..., tuple[float, float, float,
             d12 = d + b * c2
             r1 = t1 + bs2 * qd2 * (2.0 * qd1 + qd2) - g1 * cos(q1) - gc12 - b1 * qd1
             r2 = t2 - bs2 * qd1 * qd1 - gc12 - b2 * qd2
-            det = d11 * d - d12 * d12
-            a1, e1 = (d * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
+            det = d11 * e - d12 * d12
+            a1, e1 = (e * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
             p1, p2, v1, v2 = q1 + h2 * qd1, q2 + h2 * qd2, qd1 + h2 * a1, qd2 + h2 * e1
             # stage 2 at (p, v)
             c2 = cos(p2)
@@ -160,8 +180,8 @@ def _make_step(k: tuple[float, ...]) -> Callable[..., tuple[float, float, float,
             d12 = d + b * c2
             r1 = t1 + bs2 * v2 * (2.0 * v1 + v2) - g1 * cos(p1) - gc12 - b1 * v1
             r2 = t2 - bs2 * v1 * v1 - gc12 - b2 * v2
-            det = d11 * d - d12 * d12
-            a2, e2 = (d * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
+            det = d11 * e - d12 * d12
+            a2, e2 = (e * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
             p1, p2, w1, w2 = q1 + h2 * v1, q2 + h2 * v2, qd1 + h2 * a2, qd2 + h2 * e2
             # stage 3 at (p, w)
             c2 = cos(p2)
@@ -171,8 +191,8 @@ def _make_step(k: tuple[float, ...]) -> Callable[..., tuple[float, float, float,
             d12 = d + b * c2
             r1 = t1 + bs2 * w2 * (2.0 * w1 + w2) - g1 * cos(p1) - gc12 - b1 * w1
             r2 = t2 - bs2 * w1 * w1 - gc12 - b2 * w2
-            det = d11 * d - d12 * d12
-            a3, e3 = (d * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
+            det = d11 * e - d12 * d12
+            a3, e3 = (e * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
             p1, p2, u1, u2 = q1 + dt * w1, q2 + dt * w2, qd1 + dt * a3, qd2 + dt * e3
             # stage 4 at (p, u)
             c2 = cos(p2)
@@ -182,8 +202,8 @@ def _make_step(k: tuple[float, ...]) -> Callable[..., tuple[float, float, float,
             d12 = d + b * c2
             r1 = t1 + bs2 * u2 * (2.0 * u1 + u2) - g1 * cos(p1) - gc12 - b1 * u1
             r2 = t2 - bs2 * u1 * u1 - gc12 - b2 * u2
-            det = d11 * d - d12 * d12
-            a4, e4 = (d * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
+            det = d11 * e - d12 * d12
+            a4, e4 = (e * r1 - d12 * r2) / det, (d11 * r2 - d12 * r1) / det
             q1 = q1 + h6 * (qd1 + 2.0 * (v1 + w1) + u1)
             q2 = q2 + h6 * (qd2 + 2.0 * (v2 + w2) + u2)
             qd1 = qd1 + h6 * (a1 + 2.0 * (a2 + a3) + a4)
@@ -206,7 +226,7 @@ def _make_forward_dynamics(k: tuple[float, ...], checked: Callable[..., np.ndarr
     not a (2,) array, goes to ``checked`` (the validating path), which names the bad
     argument or, for finite inputs that overflow, returns the same values.
     """
-    a, b, d, g1, g2, b1, b2 = k
+    a, b, d, e, g1, g2, b1, b2 = k
     b2x = 2.0 * b
     cos, sin, isfinite, empty = math.cos, math.sin, math.isfinite, np.empty
 
@@ -222,8 +242,8 @@ def _make_forward_dynamics(k: tuple[float, ...], checked: Callable[..., np.ndarr
             d12 = d + b * c2
             r1 = t1 + bs2 * qd2 * (2.0 * qd1 + qd2) - g1 * cos(q1) - gc12 - b1 * qd1
             r2 = t2 - bs2 * qd1 * qd1 - gc12 - b2 * qd2
-            det = d11 * d - d12 * d12
-            x1 = (d * r1 - d12 * r2) / det
+            det = d11 * e - d12 * d12
+            x1 = (e * r1 - d12 * r2) / det
             x2 = (d11 * r2 - d12 * r1) / det
             if isfinite(x1 + x2):
                 out = empty(2)  # 30% cheaper than np.array((x1, x2))
@@ -312,7 +332,20 @@ class TwoLinkArm:
     gravity : m/s^2, >= 0
         Magnitude of gravity, acting along -y.
     joint_damping : (b1, b2), N m s/rad, each >= 0
-        Viscous friction torque ``-b_i qd_i`` at each joint.
+        Viscous friction torque ``-b_i qd_i`` at each joint (link side).
+    gear_ratios : (n1, n2), [-], each > 0 (default 1)
+        Gear reduction of each joint's drive: motor turns per joint turn.
+    motor_inertias : (Jm1, Jm2), kg m^2, each >= 0 (default 0)
+        Rotor inertia of each joint's motor, motor side. The joint sees the reflected
+        inertia ``n_i^2 Jm_i`` (:attr:`armature`) on the diagonal of ``D(q)``.
+    motor_damping : (Bm1, Bm2), N m s/rad, each >= 0 (default 0)
+        Viscous friction of each motor, motor side. The joint sees ``n_i^2 Bm_i`` added to
+        ``joint_damping`` (:attr:`total_damping`).
+
+    Commands (``tau``) and every state are joint-side (link-side): ``tau_i`` is ``n_i``
+    times motor ``i``'s torque, ``qd_i`` its speed over ``n_i``. Spong, Hutchinson,
+    Vidyasagar, *Robot Modeling and Control*, Dynamics chapter (reflected rotor inertia in
+    ``D(q)``) and Independent Joint Control chapter (actuator dynamics).
     """
 
     link_lengths: Pair = (1.0, 0.8)
@@ -321,9 +354,12 @@ class TwoLinkArm:
     link_inertias: Pair = (0.1, 0.08)
     gravity: float = 9.81
     joint_damping: Pair = (0.0, 0.0)
+    gear_ratios: Pair = (1.0, 1.0)
+    motor_inertias: Pair = (0.0, 0.0)
+    motor_damping: Pair = (0.0, 0.0)
     n_dof: int = field(default=2, init=False)
-    # Derived in __post_init__, not arguments: the lumped constants (a, b, d, g1, g2, b1,
-    # b2) and the formulas built from them (float and array versions).
+    # Derived in __post_init__, not arguments: the lumped constants (a, b, d, e, g1, g2, b1,
+    # b2; see _make_accel) and the formulas built from them (float and array versions).
     _k: tuple[float, ...] = field(init=False, repr=False, compare=False)
     _acc_float: Callable[..., Any] = field(init=False, repr=False, compare=False)
     _acc_array: Callable[..., Any] = field(init=False, repr=False, compare=False)
@@ -337,23 +373,30 @@ class TwoLinkArm:
             'link_masses': dict(minimum=0.0, strict=True),
             'link_inertias': dict(minimum=0.0),
             'joint_damping': dict(minimum=0.0),
+            'gear_ratios': dict(minimum=0.0, strict=True),
+            'motor_inertias': dict(minimum=0.0),
+            'motor_damping': dict(minimum=0.0),
         }
         for name, kw in checks.items():
             object.__setattr__(self, name, finite_tuple(name, getattr(self, name), 2, **kw))
         object.__setattr__(self, 'gravity', finite_scalar('gravity', self.gravity, minimum=0.0))
         (l1, _), (lc1, lc2) = self.link_lengths, self.com_distances
         (m1, m2), (i1, i2) = self.link_masses, self.link_inertias
-        a = m1 * lc1**2 + m2 * (l1**2 + lc2**2) + i1 + i2
+        (arm1, arm2), (bt1, bt2) = self.armature, self.total_damping
+        a = m1 * lc1**2 + m2 * (l1**2 + lc2**2) + i1 + i2 + arm1
         b = m2 * l1 * lc2
         d = m2 * lc2**2 + i2
-        # det D(q) = a d - d^2 - b^2 cos^2 q2 is smallest at cos^2 q2 = 1.
-        if not (d > 0.0 and a * d - d * d - b * b > 1e-12 * a * d):
+        e = d + arm2
+        # det D(q) = a e - d^2 + 2 b (e - d) cos q2 - b^2 cos^2 q2, concave in cos q2, is
+        # smallest at cos q2 = -1 (e >= d, b >= 0); without motors a d - d^2 - b^2.
+        if not (e > 0.0 and a * e - d * d - b * b - 2.0 * b * (e - d) > 1e-12 * a * e):
             raise ValueError(
                 'link_inertias/com_distances: the mass matrix D(q) is singular for some q '
-                f'(link_inertias={self.link_inertias}, com_distances={self.com_distances}); '
-                'give link 2 a positive inertia or a non-zero com distance')
-        k = (a, b, d, (m1 * lc1 + m2 * l1) * self.gravity, m2 * lc2 * self.gravity,
-             *self.joint_damping)
+                f'(link_inertias={self.link_inertias}, com_distances={self.com_distances}, '
+                f'motor_inertias={self.motor_inertias}); give link 2 a positive inertia or a '
+                'non-zero com distance')
+        k = (a, b, d, e, (m1 * lc1 + m2 * l1) * self.gravity, m2 * lc2 * self.gravity,
+             bt1, bt2)
         object.__setattr__(self, '_k', k)
         object.__setattr__(self, '_acc_float', _make_accel(k, math.cos, math.sin))
         object.__setattr__(self, '_acc_array', _make_accel(k, np.cos, np.sin))
@@ -374,7 +417,21 @@ class TwoLinkArm:
 
     #: The constructor arguments, which are also the robot parameters' names.
     PARAMETERS = ('link_lengths', 'com_distances', 'link_masses', 'link_inertias', 'gravity',
-                  'joint_damping')
+                  'joint_damping', 'gear_ratios', 'motor_inertias', 'motor_damping')
+
+    @property
+    def armature(self) -> Pair:
+        """``(n1^2 Jm1, n2^2 Jm2)`` [kg m^2]: each rotor's inertia reflected to its joint,
+        added to the diagonal of ``D(q)`` (MuJoCo's joint ``armature``)."""
+        (n1, n2), (j1, j2) = self.gear_ratios, self.motor_inertias
+        return n1 * n1 * j1, n2 * n2 * j2
+
+    @property
+    def total_damping(self) -> Pair:
+        """``joint_damping + n^2 Bm`` [N m s/rad] per joint: the viscous friction the
+        joint sees, link side plus the motor's reflected through the gear (``B``)."""
+        (b1, b2), (n1, n2), (f1, f2) = self.joint_damping, self.gear_ratios, self.motor_damping
+        return b1 + n1 * n1 * f1, b2 + n2 * n2 * f2
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any]) -> TwoLinkArm:
@@ -384,13 +441,14 @@ class TwoLinkArm:
 
     # ------------------------------------------------------------------ public API
     def mass_matrix(self, q) -> np.ndarray:
-        """D(q), kg m^2: shape (2, 2), or (..., 2, 2) for a batch of q (..., 2) [rad]."""
+        """D(q), kg m^2: shape (2, 2), or (..., 2, 2) for a batch of q (..., 2) [rad]; the
+        reflected rotor inertias (:attr:`armature`) included on the diagonal."""
         q = state_array('q', q, 2)
-        a, b, d = self._k[:3]
+        a, b, d, e = self._k[:4]
         c2 = np.cos(q[..., 1])
         d12 = d + b * c2
         return np.stack([np.stack([a + 2.0 * b * c2, d12], -1),
-                         np.stack([d12, np.full_like(c2, d)], -1)], -2)
+                         np.stack([d12, np.full_like(c2, e)], -1)], -2)
 
     def coriolis_matrix(self, q, qd) -> np.ndarray:
         """C(q, qd), N m s/rad, Christoffel form: shape (2, 2) or (..., 2, 2)."""
@@ -405,14 +463,15 @@ class TwoLinkArm:
     def gravity_vector(self, q) -> np.ndarray:
         """g(q) = dPE/dq, N m: shape (2,) or (..., 2)."""
         q = state_array('q', q, 2)
-        g1, g2 = self._k[3:5]
+        g1, g2 = self._k[4:6]
         gc12 = g2 * np.cos(q[..., 0] + q[..., 1])
         return np.stack([g1 * np.cos(q[..., 0]) + gc12, gc12], -1)
 
     def damping_torque(self, qd) -> np.ndarray:
-        """B qd, N m (the viscous friction the joints resist with)."""
+        """B qd, N m (the viscous friction the joints resist with): ``B = diag(joint_damping
+        + n^2 Bm)`` (:attr:`total_damping`), shape (2,) or (..., 2)."""
         qd = state_array('qd', qd, 2)
-        return qd * np.asarray(self.joint_damping)
+        return qd * np.asarray(self._k[6:8])
 
     def forward_dynamics(self, q, qd, tau) -> np.ndarray:
         """qdd [rad/s^2] from q [rad], qd [rad/s], tau [N m]; damping included.
@@ -537,7 +596,9 @@ class TwoLinkArm:
             return math.nan, math.nan, math.nan, math.nan
 
     def energy(self, q, qd) -> tuple[np.ndarray, np.ndarray]:
-        """(kinetic, potential) energy [J]; potential is zero at the base height."""
+        """(kinetic, potential) energy [J]; potential is zero at the base height. Kinetic
+        ``qd^T D(q) qd / 2``, the rotors' ``n^2 Jm qd^2 / 2`` included; shapes () or (...)
+        for q, qd (2,) or (..., 2) [rad, rad/s]."""
         qd = state_array('qd', qd, 2)
         kinetic = 0.5 * np.einsum('...i,...ij,...j->...', qd, self.mass_matrix(q), qd)
         q = state_array('q', q, 2)
@@ -737,7 +798,8 @@ class TwoLinkArm:
             ``lc2' = (m2 lc2 + p l2) / (m2 + p)``, inertia about it (parallel axis
             theorem) ``I2' = I2 + m2 (lc2' - lc2)^2 + p (l2 - lc2')^2``. Its dynamics are
             this arm's plus the point mass's (``D' = D + p J^T J``, ``g' = g + p g0
-            dy_tip/dq``, ``J`` :meth:`jacobian`). ``mass == 0`` returns this arm itself.
+            dy_tip/dq``, ``J`` :meth:`jacobian`); gravity, damping and the motors are
+            carried over. ``mass == 0`` returns this arm itself.
         """
         p = finite_scalar('mass', mass, minimum=0.0)
         if p == 0.0:
@@ -745,10 +807,8 @@ class TwoLinkArm:
         (_, l2), (lc1, lc2) = self.link_lengths, self.com_distances
         (m1, m2), (i1, i2) = self.link_masses, self.link_inertias
         c = (m2 * lc2 + p * l2) / (m2 + p)
-        return type(self)(link_lengths=self.link_lengths, com_distances=(lc1, c),
-                          link_masses=(m1, m2 + p),
-                          link_inertias=(i1, i2 + m2 * (c - lc2) ** 2 + p * (l2 - c) ** 2),
-                          gravity=self.gravity, joint_damping=self.joint_damping)
+        return replace(self, com_distances=(lc1, c), link_masses=(m1, m2 + p),
+                       link_inertias=(i1, i2 + m2 * (c - lc2) ** 2 + p * (l2 - c) ** 2))
 
     def with_errors(self, mass_error: float, length_error: float) -> TwoLinkArm:
         """This arm with relative parameter errors, e.g. a controller's imperfect model.
@@ -765,9 +825,10 @@ class TwoLinkArm:
         -------
         TwoLinkArm
             Inertias ``I_i (1 + e_m) (1 + e_l)^2`` (each link scaled as a body: mass times
-            length squared), gravity and joint damping unchanged; so ``D(q)`` scales by
-            ``(1 + e_m) (1 + e_l)^2`` and ``g(q)`` by ``(1 + e_m) (1 + e_l)``. Where both
-            factors are exactly 1 this arm itself.
+            length squared), gravity, joint damping and the motors (gear ratios, rotor
+            inertias and damping) unchanged; so the links' part of ``D(q)`` scales by
+            ``(1 + e_m) (1 + e_l)^2`` (the :attr:`armature` stays) and ``g(q)`` by ``(1 +
+            e_m) (1 + e_l)``. Where both factors are exactly 1 this arm itself.
         """
         m = 1.0 + finite_scalar('mass_error', mass_error, minimum=-1.0, strict=True)
         s = 1.0 + finite_scalar('length_error', length_error, minimum=-1.0, strict=True)
@@ -775,10 +836,9 @@ class TwoLinkArm:
             return self
         (l1, l2), (c1, c2) = self.link_lengths, self.com_distances
         (m1, m2), (i1, i2) = self.link_masses, self.link_inertias
-        return type(self)(link_lengths=(s * l1, s * l2), com_distances=(s * c1, s * c2),
-                          link_masses=(m * m1, m * m2),
-                          link_inertias=(m * s * s * i1, m * s * s * i2),
-                          gravity=self.gravity, joint_damping=self.joint_damping)
+        return replace(self, link_lengths=(s * l1, s * l2), com_distances=(s * c1, s * c2),
+                       link_masses=(m * m1, m * m2),
+                       link_inertias=(m * s * s * i1, m * s * s * i2))
 
 
 class TwoLinkBatch:
@@ -806,7 +866,8 @@ class TwoLinkBatch:
         if bad:
             raise ValueError(f'arms[{bad[0]}] must be a TwoLinkArm, got {arms[bad[0]]!r}')
         self.arms = arms
-        k: tuple[Any, ...] = tuple(np.array([a._k[i] for a in arms]) for i in range(7))
+        k: tuple[Any, ...] = tuple(np.array([a._k[i] for a in arms])
+                                   for i in range(len(arms[0]._k)))
         self._k = k
         self._acc = _make_accel(k, np.cos, np.sin)
         self._tau = _make_inverse(k, np.cos, np.sin)
@@ -840,7 +901,7 @@ class TwoLinkBatch:
     def gravity_vector(self, q) -> np.ndarray:
         """g(q) (B, 2) [N m] of each arm at q (B, 2) [rad]."""
         (q,) = self._states(q=q)
-        g1, g2 = self._k[3:5]
+        g1, g2 = self._k[4:6]
         gc12 = g2 * np.cos(q[:, 0] + q[:, 1])
         return np.stack([g1 * np.cos(q[:, 0]) + gc12, gc12], -1)
 

@@ -34,6 +34,13 @@ no one-sided limit). Nor has URDF "no speed limit": an infinite one is written a
 :data:`UNLIMITED_VELOCITY`. Gravity is not part of a URDF: a simulator given this model
 sets it to ``(0, -gravity, 0)`` in ``base_link``.
 
+The geared motors (``gear_ratios``, ``motor_inertias``, ``motor_damping``) are not written:
+URDF has no rotor inertia (a ``<transmission>``'s ``mechanicalReduction`` is read by
+ros2_control, not by dynamics engines, and would say nothing about ``Jm``), and
+``<dynamics damping>`` stays the link-side ``joint_damping``. A dynamics engine loading this
+URDF for an arm with motors must add the reflected inertia ``n^2 Jm`` itself (Pinocchio's
+``model.armature``, MuJoCo's joint ``armature``) and ``n^2 Bm`` to the damping.
+
 Visuals (they carry no physics): a cylinder along each link, a disc at each joint, a
 small sphere at the tip and a base plate behind the plane, sized from the link lengths.
 
