@@ -22,6 +22,7 @@ setup(
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
         ('share/' + PACKAGE + '/config/sweeps', glob('config/sweeps/*.yaml')),
+        ('share/' + PACKAGE + '/config/disturbances', glob('config/disturbances/*.yaml')),
         ('share/' + PACKAGE + '/config/rviz', glob('config/rviz/*.rviz')),
         ('share/' + PACKAGE + '/config/foxglove', glob('config/foxglove/*.json')),
         ('share/' + PACKAGE + '/config/plotjuggler', glob('config/plotjuggler/*.xml')),
