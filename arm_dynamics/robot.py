@@ -81,6 +81,18 @@ def _frame_names(robot: Mapping[str, Any]) -> str | None:
     return None
 
 
+def _static_band(robot: Mapping[str, Any]) -> str | None:
+    """Why ``static_friction`` is below ``coulomb_friction`` on a joint (0 = the Coulomb
+    value: allowed)."""
+    pairs = zip(robot['static_friction'], robot['coulomb_friction'])
+    low = [(i, s, c) for i, (s, c) in enumerate(pairs) if 0 < s < c]
+    if not low:
+        return None
+    i, s, c = low[0]
+    return (f'static_friction[{i}] = {s:g} N m is below coulomb_friction[{i}] = {c:g} N m: '
+            'the break-away torque is at least the sliding one (0 = equal to it)')
+
+
 #: Robot description shared by every node; read-only. The per-joint ones have one value
 #: per joint of the model (:func:`~arm_dynamics.models.joint_count`); not given, the
 #: default for the first two joints, the last value repeated beyond (joint names
@@ -113,6 +125,13 @@ ROBOT_PARAMS: tuple[ParamSpec, ...] = (
     _model('motor_damping', 'Viscous friction of each joint motor, motor side; the joint '
            'sees gear_ratio^2 times it added to joint_damping', 'N m s/rad', minimum=0.0,
            maximum=1e4),
+    _pair('coulomb_friction', (0.0, 0.0), 'Coulomb (sliding) friction of each joint, '
+          'link side: -c sign(qd) while it slips, stick/slip exact (arm_dynamics.friction)',
+          'N m', minimum=0.0, maximum=1e4),
+    _pair('static_friction', (0.0, 0.0), 'Break-away (static) friction of each joint: a '
+          'joint at rest stays stuck while the torque needed to hold it is within it; 0 = '
+          'its coulomb_friction, else >= it', 'N m', minimum=0.0, maximum=1e4,
+          relation=_static_band),
     _pair('effort_limits', DEFAULT_EFFORT, 'Joint torque limits (applied torque is clipped)',
           'N m', minimum=0.0, strict_min=True, maximum=1e6),
     _pair('position_limits_lower', DEFAULT_POSITION_LOWER,

@@ -14,10 +14,12 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
+from arm_dynamics.disturbance import ArmModel, Disturbances, Event, Push, apply_impulse
+from arm_dynamics.friction import JointFriction, friction_step
 from arm_dynamics.integrate import Model
 from arm_dynamics.limits import JointLimits
 from arm_dynamics.models import geared_link, robot_model
@@ -75,6 +77,15 @@ class SimulatorCore:
     actuation_delay : int, control periods >= 0 -- the command held for a period is
         applied ``actuation_delay`` periods later (:class:`~arm_dynamics.sensors.
         ActuationDelay`; zero torque before); 0: at once.
+    friction : Coulomb and static joint friction (:class:`~arm_dynamics.friction.
+        JointFriction`), stick/slip located inside each physics step; None: none.
+    disturbances : pushes and faults at exact simulated times (:class:`~arm_dynamics.
+        disturbance.Disturbances`); None: none (:meth:`push` adds live ones).
+
+    With friction or disturbances each physics step is taken on its own
+    (:meth:`_integrate_real`: impulses, the delivered motor torque ``torque_scale *
+    clip(command)`` plus the external load, brakes and friction); without them the period
+    is the model's ``step`` of ``substeps`` steps, as before, bit for bit.
 
     :meth:`joint_view` is the measurement (what the node publishes on ``joint_states``),
     :meth:`true_view` the true state; each state is measured once, when it is reached
@@ -85,7 +96,9 @@ class SimulatorCore:
                  control_period_ns: int, velocity_limit: float,
                  joint_names: Sequence[str], joint_limits: JointLimits | None = None,
                  hard_stops: bool = False, envelope: JointLimits | None = None,
-                 sensors: SensorModel | None = None, actuation_delay: int = 0) -> None:
+                 sensors: SensorModel | None = None, actuation_delay: int = 0,
+                 friction: JointFriction | None = None,
+                 disturbances: Disturbances | None = None) -> None:
         n = model.n_dof
         if physics_step_ns <= 0 or control_period_ns % physics_step_ns:
             raise ValueError(
@@ -109,6 +122,19 @@ class SimulatorCore:
             raise ValueError(f'the sensor model measures {self.sensors.n} joints, the model '
                              f'has {n}')
         self.actuator = ActuationDelay(n, actuation_delay)
+        if friction is not None and friction.n != n:
+            raise ValueError(f'friction is given for {friction.n} joints, the model has {n}')
+        self.friction = friction if friction is not None and friction.enabled else None
+        self._frictionless = JointFriction.none(n)  # brakes or pushes without friction
+        if (disturbances is not None or self.friction is not None) and not _pushable(model):
+            raise ValueError(f'{type(model).__name__} takes no friction, pushes or faults '
+                             '(it is no RobotModel: no mass matrix or Jacobian)')
+        self.disturbances = disturbances
+        self.physics_step_ns = physics_step_ns
+        #: Energy [J] friction and brakes took since the start (reset keeps counting).
+        self.friction_work = 0.0
+        #: The events (push and fault starts and ends) of the last period integrated.
+        self.events: list[Event] = []
         self.time_ns = 0
         self.reset()
 
@@ -118,6 +144,8 @@ class SimulatorCore:
         self.qd = self.qd0.copy()
         self.command = np.zeros(self.n)
         self.applied = np.zeros(self.n)
+        self.external = np.zeros(self.n)  # mean push torque over the last period [N m]
+        self.stuck = np.zeros(self.n, dtype=bool)
         self.diverged: str | None = None
         self.actuator.clear()
         if self.sensors is not None:
@@ -125,9 +153,40 @@ class SimulatorCore:
         self._sense()
 
     def _sense(self) -> None:
-        """Measure the state just reached (once per state)."""
+        """Measure the state just reached (once per state); encoder faults act on the
+        measurement."""
         if self.sensors is not None:
             self.measured = self.sensors.measure(self.q, self.qd)
+        dist = self.disturbances
+        if dist is not None and dist.faults:
+            q, qd = self.measured if self.sensors is not None else (self.q, self.qd)
+            self.measured = dist.measure(self.time_ns, q, qd)
+
+    @property
+    def measuring(self) -> bool:
+        """Can the published measurement differ from the true state?"""
+        return self.sensors is not None or (self.disturbances is not None
+                                            and bool(self.disturbances.faults))
+
+    def accepts_command(self) -> bool:
+        """Does an effort command arriving now reach the drive? (Not inside a
+        ``commands_dropped`` fault: it is lost, the drive keeps the last one.)"""
+        dist = self.disturbances
+        return dist is None or not dist.commands_dropped(self.time_ns)
+
+    def push(self, force, duration_ns: int) -> Push:
+        """A live tip push: ``force`` (2,) [N, base frame] over ``duration_ns`` from the
+        start of the next period (now). Raises ValueError naming a bad value."""
+        if not _pushable(self.model):
+            raise ValueError(f'{type(self.model).__name__} has no tip to push')
+        if self.disturbances is None:
+            self.disturbances = Disturbances(n=self.n, joint_names=self.joint_names[:self.n],
+                                             physics_step_ns=self.physics_step_ns,
+                                             source='live')
+        push = Push(self.time_ns, self.time_ns + duration_ns, 'tip_force',
+                    tuple(float(v) for v in force), 'pulse', label='live')
+        self.disturbances.add_push(push)
+        return push
 
     def set_command(self, data: Sequence[float]) -> None:
         """Hold a new effort command [N m]; raises :class:`CommandError` and keeps the old
@@ -164,8 +223,12 @@ class SimulatorCore:
             self.applied = np.zeros(self.n)
             return
         self.applied = np.clip(command, -self.limits, self.limits)
+        dist = self.disturbances
+        self.events = dist.events(self.time_ns - self.period_ns, self.time_ns) if dist else []
         with np.errstate(all='ignore'):
-            if self.hard_stops and self.joint_limits is not None:
+            if self.friction is not None or (dist is not None and dist.enabled):
+                q, qd = self._integrate_real(self.time_ns - self.period_ns)
+            elif self.hard_stops and self.joint_limits is not None:
                 q, qd = self.q, self.qd
                 try:
                     for _ in range(self.substeps):
@@ -189,6 +252,49 @@ class SimulatorCore:
             return
         self.q, self.qd = q, qd
 
+    def _integrate_real(self, t0_ns: int) -> tuple[np.ndarray, np.ndarray]:
+        """The period from ``t0_ns`` one physics step at a time: impulses at its start,
+        the delivered torque (a torque loss scales the clipped command; the external load
+        is added, never clipped), brakes and friction (:func:`~arm_dynamics.friction.
+        friction_step`), hard stops. Sets :attr:`applied` (the mean delivered motor torque)
+        and :attr:`external` (the mean external torque)."""
+        model, dist, dt = cast(ArmModel, self.model), self.disturbances, self.dt
+        friction = self.friction or self._frictionless
+        q, qd, stuck = self.q, self.qd, self.stuck
+        step = self.physics_step_ns
+        delivered = np.zeros(self.n)
+        external = np.zeros(self.n)
+        work = 0.0
+        try:
+            for k in range(self.substeps):
+                t = t0_ns + k * step
+                tau = self.applied
+                locked = None
+                if dist is not None:
+                    for p in dist.impulses(t, t + step):
+                        qd = apply_impulse(model, q, qd, p.kind, p.array)
+                        stuck = stuck & (qd == 0.0)
+                    locked = dist.locked(t)
+                    tau = tau * dist.torque_scale(t)
+                    delivered += tau
+                    load = dist.external_torque(t, q, model)
+                    external += load
+                    tau = tau + load
+                q, qd, stuck, w = friction_step(model, q, qd, tau, dt, stuck, friction,
+                                                locked)
+                work += w
+                if self.hard_stops and self.joint_limits is not None:
+                    q, qd = self.joint_limits.hard_stop(q, qd)
+                    stuck = stuck & (qd == 0.0)
+        except ValueError:  # went non-finite within the period: a step refuses it
+            return np.full(self.n, np.nan), np.full(self.n, np.nan)
+        if dist is not None:
+            self.applied = delivered / self.substeps
+            self.external = external / self.substeps
+        self.stuck = stuck
+        self.friction_work += work
+        return q, qd
+
     def _fault(self, reason: str) -> None:
         """Stop integrating: the last good position is held, at rest (zero velocity: a
         frozen arm does not move, and nobody reading the state should plan from a speed
@@ -196,6 +302,8 @@ class SimulatorCore:
         self.diverged = reason
         self.qd = np.zeros(self.n)
         self.applied = np.zeros(self.n)
+        self.external = np.zeros(self.n)
+        self.stuck = np.zeros(self.n, dtype=bool)
 
     @property
     def outside_limits(self) -> str | None:
@@ -209,20 +317,30 @@ class SimulatorCore:
         ``joint_states``: the measured state (the true one without sensors) in the model's
         own view of its state when it has one (:meth:`SingleLinkGeared.joint_view` shows
         motor shaft and link), else one entry per joint."""
-        if self.sensors is None:
+        if not self.measuring:
             return self._view(self.q, self.qd)
         return self._view(*self.measured)
 
     def true_view(self) -> JointView:
-        """:meth:`joint_view` of the true state (``simulator/true_joint_states``)."""
-        return self._view(self.q, self.qd)
+        """:meth:`joint_view` of the true state (``simulator/true_joint_states``); its
+        effort is the true applied torque: the motor's plus any push."""
+        return self._view(self.q, self.qd, self.applied + self.external)
 
-    def _view(self, q_: np.ndarray, qd_: np.ndarray) -> JointView:
-        q, qd, tau = q_.tolist(), qd_.tolist(), self.applied.tolist()
+    def _view(self, q_: np.ndarray, qd_: np.ndarray,
+              tau_: np.ndarray | None = None) -> JointView:
+        tau_ = self.applied if tau_ is None else tau_
+        q, qd, tau = q_.tolist(), qd_.tolist(), tau_.tolist()
         view = getattr(self.model, 'joint_view', None)
         if view is not None:
             return JointView(*view(self.joint_names, q, qd, tau))
         return JointView(self.joint_names[: self.n], q, qd, tau)
+
+
+def _pushable(model: object) -> bool:
+    """Does ``model`` have what friction, pushes and brakes use (a RobotModel's mass
+    matrix, Jacobian and inverse dynamics; the geared link has not)?"""
+    return all(hasattr(model, name) for name in ('mass_matrix', 'jacobian',
+                                                 'inverse_dynamics'))
 
 
 def _envelope(values: Mapping[str, Any]) -> JointLimits | None:

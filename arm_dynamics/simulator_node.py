@@ -12,6 +12,8 @@ from __future__ import annotations
 import math
 import time
 
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from rclpy.timer import Timer
 from rosgraph_msgs.msg import Clock
@@ -31,6 +33,8 @@ from arm_common.node import (
     steady_clock,
 )
 from arm_common.params import ParamSpec
+from arm_dynamics.disturbance import DisturbanceError, Disturbances, Event
+from arm_dynamics.friction import JointFriction
 from arm_dynamics.limits import JointLimits
 from arm_dynamics.models import joint_count
 from arm_dynamics.robot import ROBOT_PARAMS
@@ -82,6 +86,15 @@ Sensors and actuators (all off by default): joint_states is the measurement (noi
 encoder counts, sensing_delay, drawn from noise_seed) and the command acts
 actuation_delay periods late; with any of them on, simulator/true_joint_states
 (sensor_msgs/JointState, same stamp) carries the true state.
+
+A real arm (robot parameters, all off by default): geared motors (gear_ratios,
+motor_inertias, motor_damping) and stick/slip friction (coulomb_friction,
+static_friction) on every joint. Pushes and faults at exact simulated times from
+disturbance_file (a YAML scenario: config/disturbances/example.yaml), live tip pushes on
+simulator/push (geometry_msgs/WrenchStamped: force x, y in N, base frame, held push_duration
+s); each start and end is published on simulator/events (diagnostic_msgs/DiagnosticStatus,
+values time_ns, kind, edge, label) and logged; simulator/true_joint_states then carries the
+true applied torque (motor plus push) as its effort.
 '''
 
 SIM_PARAMS: tuple[ParamSpec, ...] = (
@@ -163,6 +176,14 @@ SIM_PARAMS: tuple[ParamSpec, ...] = (
               'Sensors: seed of the noise generator (numpy PCG64): the same seed gives the '
               'same measurements, bit for bit', '', minimum=0, maximum=1e9,
               read_only=True),
+    ParamSpec('disturbance_file', 'string', '',
+              'Pushes and faults at exact simulated times: a YAML scenario (see '
+              'config/disturbances/example.yaml; times on the physics_step grid); empty = '
+              'none', read_only=True),
+    ParamSpec('push_duration', 'double', 0.1,
+              'How long a live push on simulator/push is held (a pulse from the next control '
+              'period); a whole multiple of physics_step', 's', minimum=0.0, strict_min=True,
+              maximum=3600.0, read_only=True),
     ParamSpec('geared.motor_inertia', 'double', 0.005, 'Geared link: motor inertia Jm',
               'kg m^2', minimum=0.0, strict_min=True, read_only=True),
     ParamSpec('geared.load_inertia', 'double', 1.0,
@@ -190,6 +211,14 @@ def _ns(seconds: float) -> int:
 
 def _pause_ns(pause_at: float) -> int | None:
     return None if pause_at < 0 else _ns(pause_at)
+
+
+def _static_default(robot: dict) -> dict:
+    """The robot parameters with each ``static_friction`` of 0 replaced by the joint's
+    ``coulomb_friction`` (0 = no break-away torque beyond the Coulomb one)."""
+    coulomb = list(robot.get('coulomb_friction') or [])
+    static = list(robot.get('static_friction') or [])
+    return {**robot, 'static_friction': [s if s > 0 else c for s, c in zip(static, coulomb)]}
 
 
 class SimulatorNode(Node):
@@ -232,13 +261,29 @@ class SimulatorNode(Node):
                               velocity_noise=p['velocity_noise'][:n],
                               encoder_resolution=p['encoder_resolution'][:n],
                               sensing_delay=p['sensing_delay'], seed=p['noise_seed'])
-        self.core = SimulatorCore(model, q0=q0, qd0=qd0, effort_limits=limits,
-                                  physics_step_ns=step_ns, control_period_ns=period_ns,
-                                  velocity_limit=p['velocity_limit'],
-                                  joint_names=robot['joint_names'],
-                                  joint_limits=joint_limits,
-                                  hard_stops=p['enforce_position_limits'], envelope=envelope,
-                                  sensors=sensors, actuation_delay=p['actuation_delay'])
+        try:
+            friction = JointFriction.from_params(_static_default(robot), n)
+            disturbances = (Disturbances.load(p['disturbance_file'], n=n,
+                                              joint_names=robot['joint_names'][:n],
+                                              physics_step_ns=step_ns,
+                                              tip_forces=not self.geared)
+                            if p['disturbance_file'].strip() else None)
+        except (ValueError, DisturbanceError) as exc:
+            raise ConfigError(str(exc)) from None
+        self.push_ns = _ns(p['push_duration'])
+        if self.push_ns % step_ns:
+            raise ConfigError(f"push_duration {p['push_duration']:g} s is not a whole "
+                              f"multiple of physics_step {p['physics_step']:g} s")
+        try:
+            self.core = SimulatorCore(
+                model, q0=q0, qd0=qd0, effort_limits=limits, physics_step_ns=step_ns,
+                control_period_ns=period_ns, velocity_limit=p['velocity_limit'],
+                joint_names=robot['joint_names'], joint_limits=joint_limits,
+                hard_stops=p['enforce_position_limits'], envelope=envelope, sensors=sensors,
+                actuation_delay=p['actuation_delay'], friction=friction,
+                disturbances=disturbances)
+        except ValueError as exc:  # the geared link with friction or disturbances
+            raise ConfigError(f"model {p['model']}: {exc}") from None
         self.keeper = Timekeeper(mode=p['timing_mode'], period_ns=period_ns,
                                  real_time_factor=p['real_time_factor'],
                                  hold_until_command=p['wait_for_command'],
@@ -251,7 +296,11 @@ class SimulatorNode(Node):
         # differ (a sensor or actuator effect on): with the defaults, bags are what they were.
         self.true_pub = self.create_publisher(JointState, 'simulator/true_joint_states',
                                               STREAM_DEPTH)
-        self.publish_true = sensors.enabled or p['actuation_delay'] > 0
+        self.publish_true = (sensors.enabled or p['actuation_delay'] > 0
+                             or disturbances is not None)
+        self.events_pub = self.create_publisher(DiagnosticStatus, 'simulator/events',
+                                                STREAM_DEPTH)
+        self.create_subscription(WrenchStamped, 'simulator/push', self._on_push, 10)
         # The first state waits for wait_for_nodes (e.g. the recorder) to match joint_states
         # and clock; until then time is held at t = 0 and nothing is published.
         self.gate = SubscriberGate(self, [self.state_pub, self.clock_pub],
@@ -351,6 +400,8 @@ class SimulatorNode(Node):
         core = self.core
         was_diverged = core.diverged
         core.advance()
+        for event in core.events:
+            self._publish_event(event)
         if core.diverged and not was_diverged:
             kind = 'runaway' if core.diverged.startswith('runaway') else 'diverged'
             self.diag.problem(kind, core.diverged, 'ERROR', q=core.q.tolist(),
@@ -393,6 +444,38 @@ class SimulatorNode(Node):
                               + (f' (achieved {win.real_time_factor:.2f}x)' if win else ''),
                               simulated_time_given_up=f'{k.behind_s:.3f}')
 
+    def _publish_event(self, event: Event) -> None:
+        """A push or fault starting or ending: simulator/events, the log and /diagnostics."""
+        fault = event.kind not in ('tip_force', 'joint_torque')
+        sec = event.time_ns * 1e-9
+        self.events_pub.publish(DiagnosticStatus(
+            level=DiagnosticStatus.WARN if fault else DiagnosticStatus.OK,
+            name=f"simulator: {'fault' if fault else 'push'}", message=event.description,
+            values=[KeyValue(key='time_ns', value=str(event.time_ns)),
+                    KeyValue(key='kind', value=event.kind),
+                    KeyValue(key='edge', value=event.edge),
+                    KeyValue(key='label', value=event.label)]))
+        self.get_logger().info(f'{event.description} ({event.edge}, {event.label}) at '
+                               f't={sec:.3f} s')
+        self.diag.event('fault' if fault else 'push', event.description, time=f'{sec:.9f}',
+                        edge=event.edge, label=event.label)
+        self.publish_true = True
+
+    def _on_push(self, msg: WrenchStamped) -> None:
+        """A live tip push: held push_duration from the next control period."""
+        force = (msg.wrench.force.x, msg.wrench.force.y)
+        try:
+            if self.geared:
+                raise ValueError('the geared link has no tip to push')
+            push = self.core.push(force, self.push_ns)
+        except ValueError as exc:
+            self.diag.problem('rejected_push', f'push {list(force)} N refused: {exc}')
+            return
+        self.publish_true = True
+        self.get_logger().info(f'live push {list(push.value)} N for '
+                               f"{self.params['push_duration']:g} s from "
+                               f't={push.start_ns * 1e-9:.3f} s')
+
     def _on_command(self, msg: Float64MultiArray) -> None:
         answers = parse_answer_tag(msg.layout.dim[0].label) if msg.layout.dim else None
         try:
@@ -406,7 +489,8 @@ class SimulatorNode(Node):
         verdict = k.on_command(answers, self.core.time_ns, now)
         if verdict == STALE:
             return
-        self.core.command = values
+        if self.core.accepts_command():  # else lost on the way (a commands_dropped fault)
+            self.core.command = values
         self.last_command_wall = now
         if waited is not None:
             self.diag.event('controller_back', f'a command for t={self.core.time:.3f} s came '
@@ -532,7 +616,9 @@ class SimulatorNode(Node):
                       paced_real_time_factor=f'{k.paced_real_time_factor:.3f}',
                       held='' if not k.held else f'{core.time:.9f}', holds=self.holds,
                       saturated_joints=[n for n, s in zip(core.joint_names, core.saturated)
-                                        if s])
+                                        if s],
+                      friction_work=f'{core.friction_work:.6f}',
+                      stuck_joints=[n for n, s in zip(core.joint_names, core.stuck) if s])
 
     def timing_summary(self) -> str:
         """One line on how simulated time was paced (logged at shutdown; ``arm-sim

@@ -96,11 +96,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if out.exists():
         raise CliError(f'{out} exists; choose another --out')
     started = time.monotonic()
-    print(f'arm-sim demo: regulation and straight-line tracking on the simulated 2-R arm '
-          f'(output in {out}/)')
+    print(f'arm-sim demo: regulation and straight-line tracking on the simulated 2-R arm'
+          f"{' with config/real_arm.yaml (motors, friction, sensors)' if args.real_arm else ''}"
+          f' (output in {out}/)')
     _clean_shared_memory()
     demo = Demo(out, domain, fast=args.fast, slow=args.slow, foxglove=args.foxglove,
-                timing_mode=args.timing_mode)
+                timing_mode=args.timing_mode, real_arm=args.real_arm)
     try:
         bag = demo.run()
     except SuiteError as exc:
@@ -456,6 +457,10 @@ def build_parser() -> argparse.ArgumentParser:
                       help='simulator timing: lockstep (default: as fast as the closed loop '
                       'runs) or real_time (the same lockstep at wall-clock pace, to watch it; '
                       'a slow machine lowers the real-time factor, never the results)')
+    demo.add_argument('--real-arm', action='store_true',
+                      help='the arm of config/real_arm.yaml: geared motors, stick/slip '
+                      'friction and noisy, quantised, delayed sensors on both joints (the '
+                      'same seed, the same run); compare its table with the ideal arm\'s')
     domain_arg(demo)
     demo.set_defaults(func=cmd_demo)
 

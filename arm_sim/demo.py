@@ -85,7 +85,7 @@ class Demo:
 
     def __init__(self, out: Path, domain_id: int, fast: float, slow: float,
                  echo=print, foxglove: int | None = None,
-                 timing_mode: str = 'lockstep') -> None:
+                 timing_mode: str = 'lockstep', real_arm: bool = False) -> None:
         self.out = out
         self.timing_mode = timing_mode
         self.timing: dict[str, str] = {}  # the simulator's last summary (its counters)
@@ -93,6 +93,9 @@ class Demo:
         self.domain = domain_id
         self.echo = echo
         self.config = config_file()
+        # --real-arm: config/real_arm.yaml after it (geared motors, friction, sensors).
+        self.params_files = [self.config] + ([config_file('real_arm.yaml')] if real_arm
+                                             else [])
         self.gates = recorder_gates(self.config)
         self.arm, self.q0 = start_pose(self.config)
         x, y = (float(v) for v in self.arm.forward_kinematics(self.q0))
@@ -108,7 +111,7 @@ class Demo:
         # matched them: the bag holds their first messages (arm_sim.launcher.recorder_gates).
         params = {**self.gates.get(name, {}).get(name, {}), **params}
         self.procs.append(NodeProcess(
-            name, params_file=self.config, params=params, domain_id=self.domain,
+            name, params_file=self.params_files, params=params, domain_id=self.domain,
             log_path=self.out / 'logs' / f'{name}.log'))
 
     def _alive(self) -> None:

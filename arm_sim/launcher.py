@@ -20,6 +20,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from arm_common.process import PARENT_ENV, stop_child
@@ -47,16 +48,17 @@ def executable(name: str) -> list[str]:
     return [sys.executable, '-m', MODULES[name]]
 
 
-def config_file() -> Path:
-    """The shipped ``config/arm.yaml``: from the install's share/ or the source tree."""
-    candidates = [Path(p) / 'share' / 'arm_sim' / 'config' / 'arm.yaml'
+def config_file(name: str = 'arm.yaml') -> Path:
+    """A shipped file of ``config/`` (default ``arm.yaml``; ``real_arm.yaml`` the real-arm
+    set): from the install's share/ or the source tree."""
+    candidates = [Path(p) / 'share' / 'arm_sim' / 'config' / name
                   for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
-    candidates += [Path(sys.prefix) / 'share' / 'arm_sim' / 'config' / 'arm.yaml',
-                   Path(__file__).resolve().parents[1] / 'config' / 'arm.yaml']
+    candidates += [Path(sys.prefix) / 'share' / 'arm_sim' / 'config' / name,
+                   Path(__file__).resolve().parents[1] / 'config' / name]
     for c in candidates:
         if c.is_file():
             return c
-    raise FileNotFoundError('config/arm.yaml not found; looked in: '
+    raise FileNotFoundError(f'config/{name} not found; looked in: '
                             + ', '.join(str(c) for c in candidates))
 
 
@@ -114,14 +116,16 @@ class NodeProcess:
     """One node as a child process, its output in ``log_path``."""
 
     def __init__(self, name: str, *, params: dict | None = None,
-                 params_file: str | Path | None = None, namespace: str | None = None,
+                 params_file: str | Path | Sequence[str | Path] | None = None,
+                 namespace: str | None = None,
                  remaps: dict[str, str] | None = None, domain_id: int | None = None,
                  log_path: str | Path | None = None, extra_args: list[str] | None = None,
                  node_params: dict[str, dict] | None = None):
         self.name = name
         ros_args = []
-        if params_file:
-            ros_args += ['--params-file', str(params_file)]
+        files = [params_file] if isinstance(params_file, (str, Path)) else params_file or []
+        for f in files:  # a later file's value wins (rcl reads them in order)
+            ros_args += ['--params-file', str(f)]
         sections = {**({name: params} if params else {}), **(node_params or {})}
         pass_fds: tuple[int, ...] = ()
         if sections:
