@@ -1,7 +1,7 @@
 """``arm-sim``: the terminal front end of arm_sim (works in a plain venv, no ros2 CLI).
 
 Sub-commands: ``demo``, ``bringup``, ``goal``, ``analyze``, ``bag``, ``sweep``, ``identify``,
-``urdf``. Errors are one line on stderr and a non-zero exit code, never a traceback.
+``urdf``, ``check``. Errors are one line on stderr and a non-zero exit code, never a traceback.
 """
 
 from __future__ import annotations
@@ -101,7 +101,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
           f' (output in {out}/)')
     _clean_shared_memory()
     demo = Demo(out, domain, fast=args.fast, slow=args.slow, foxglove=args.foxglove,
-                timing_mode=args.timing_mode, real_arm=args.real_arm)
+                timing_mode=args.timing_mode, real_arm=args.real_arm,
+                foxglove_host=args.foxglove_host)
     try:
         bag = demo.run()
     except SuiteError as exc:
@@ -159,7 +160,7 @@ def cmd_bringup(args: argparse.Namespace) -> int:
                 overrides.setdefault(name, {}).setdefault(node, {}).update(values)
     if args.foxglove is not None:  # the Foxglove bridge first: it sees the suite from the start
         nodes.insert(0, 'live')
-        overrides['live'] = {'live': {'port': args.foxglove}}
+        overrides['live'] = {'live': {'port': args.foxglove, 'host': args.foxglove_host}}
     procs: list = []
 
     def start(name: str) -> None:
@@ -428,6 +429,10 @@ def build_parser() -> argparse.ArgumentParser:
                        "the live node (setup.py extra 'foxglove'); it refuses bad stamps, "
                        'frame ids and numbers with a reason and keeps serving, and if it '
                        'exits the run goes on without it (reported)')
+        p.add_argument('--foxglove-host', default='127.0.0.1', metavar='ADDR',
+                       help='address the live view listens on (default 127.0.0.1: this '
+                       'machine only; 0.0.0.0: every interface). Clients may offer '
+                       'foxglove.sdk.v1 or foxglove.websocket.v1')
 
     def domain_arg(p):
         p.add_argument('--domain-id', type=int, default=None,
@@ -531,7 +536,20 @@ def build_parser() -> argparse.ArgumentParser:
     from arm_sim.urdf_cli import add_urdf_parser
 
     add_urdf_parser(sub)
+    from arm_sim.check.cli import PARSER, add_check_arguments
+
+    add_check_arguments(sub.add_parser('check', **PARSER)).set_defaults(func=cmd_check)
     return parser
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    """Grade a controller over its topics (arm_sim/check, docs/check.md)."""
+    from arm_sim.check.cli import CheckUsageError, run_check
+
+    try:
+        return run_check(args, lambda: _domain(args, claim=True), _clean_shared_memory)
+    except CheckUsageError as exc:
+        raise CliError(str(exc), EXIT_USAGE) from None
 
 
 def _interrupt(*_) -> None:

@@ -85,11 +85,13 @@ class Demo:
 
     def __init__(self, out: Path, domain_id: int, fast: float, slow: float,
                  echo=print, foxglove: int | None = None,
-                 timing_mode: str = 'lockstep', real_arm: bool = False) -> None:
+                 timing_mode: str = 'lockstep', real_arm: bool = False,
+                 foxglove_host: str = '127.0.0.1') -> None:
         self.out = out
         self.timing_mode = timing_mode
         self.timing: dict[str, str] = {}  # the simulator's last summary (its counters)
         self.foxglove = foxglove  # port of the live node (Foxglove WebSocket); None: none
+        self.foxglove_host = foxglove_host  # the address it listens on
         self.domain = domain_id
         self.echo = echo
         self.config = config_file()
@@ -135,7 +137,7 @@ class Demo:
         self.echo(f'starting simulator, controller, planner, recorder and visualizer (ROS '
                   f'domain {self.domain}, localhost only; logs in {self.out / "logs"})')
         if self.foxglove is not None:  # first: Foxglove sees the run from its start
-            self._start('live', port=self.foxglove)
+            self._start('live', port=self.foxglove, host=self.foxglove_host)
         self._start('recorder', output=str(bag))
         self._start('visualizer')
         self._start('simulator', timing_mode=self.timing_mode, pause_at=0.05)

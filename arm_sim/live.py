@@ -17,6 +17,11 @@ extra ``foxglove``, imported only when a bridge is made) and the computations it
   (``geometry_msgs/msg/PoseStamped``, ``cdr`` or ``json``; Foxglove's "Publish pose" tool)
   is handed to the node, which publishes it into ROS. Other client channels are refused
   with a status message to the clients.
+* **Both names of the protocol**: foxglove-sdk accepts only the subprotocol
+  ``foxglove.sdk.v1``; stock clients offer ``foxglove.websocket.v1`` (the same protocol).
+  The bridge's front (:mod:`arm_sim.live_front`) listens on the public address, relays
+  each connection to the SDK's server on a loopback port with the name rewritten, and
+  refuses any other handshake with the reason (:class:`ConnectionRefusal`).
 * **Time**: the server advertises the ``time`` capability and the node broadcasts
   simulated time (the latest ``clock``), as foxglove_bridge does with ``use_sim_time``, so
   the 3D panel's time is the joint states' stamps' time.
@@ -56,8 +61,11 @@ DEFAULT_PORT = 8765
 #: What the live view says when foxglove-sdk is missing (one line, no traceback).
 FOXGLOVE_MISSING = ("the live view needs foxglove-sdk, which is not installed: pip install "
                     "'foxglove-sdk==0.30.3' (or the arm_sim extra: pip install -e '.[foxglove]')")
-#: WebSocket subprotocol of the Foxglove WebSocket protocol.
+#: WebSocket subprotocol of the Foxglove WebSocket protocol (its original name; the SDK's
+#: own is ``foxglove.sdk.v1``: :mod:`arm_sim.live_front` accepts both).
 SUBPROTOCOL = 'foxglove.websocket.v1'
+#: Where the SDK's server listens behind the front (:mod:`arm_sim.live_front`).
+BACKEND_HOST = '127.0.0.1'
 DESCRIPTION_TOPIC = 'robot_description'
 TF_TOPIC = 'tf'  # relative: /tf in the root namespace, as robot_state_publisher's
 GOAL_TOPIC = 'goal_pose'
@@ -293,6 +301,14 @@ class ClientMessage:
     data: bytes
 
 
+@dataclass(frozen=True)
+class ConnectionRefusal:
+    """A WebSocket handshake the server refused, and why (which subprotocols the client
+    offered, which are accepted)."""
+
+    text: str
+
+
 class Bridge:
     """The Foxglove WebSocket server and its channels (see the module docstring).
 
@@ -302,6 +318,9 @@ class Bridge:
     port : TCP port, 0 for a free one (:attr:`port` tells which)
     goal_topic : resolved name of the topic clients may publish (``/goal_pose``)
     name : server name shown by Foxglove
+    relay : serve through :class:`arm_sim.live_front.Front` (both subprotocol names, a
+        reason for each refused handshake); False: the SDK alone on ``host``:``port``
+        (``foxglove.sdk.v1`` only)
 
     Raises
     ------
@@ -312,7 +331,8 @@ class Bridge:
     """
 
     def __init__(self, host: str = '127.0.0.1', port: int = DEFAULT_PORT,
-                 goal_topic: str = '/' + GOAL_TOPIC, name: str = 'arm_sim') -> None:
+                 goal_topic: str = '/' + GOAL_TOPIC, name: str = 'arm_sim',
+                 relay: bool = True) -> None:
         import foxglove
         from foxglove.websocket import Capability
 
@@ -323,21 +343,40 @@ class Bridge:
         self.latched: set[str] = set()
         self.last: dict[str, tuple[bytes, int]] = {}  # latched topic -> (data, log time)
         self.resend: set[str] = set()
-        self.incoming: queue.SimpleQueue[ClientMessage | str] = queue.SimpleQueue()
+        self.incoming: queue.SimpleQueue[ClientMessage | ConnectionRefusal | str] = (
+            queue.SimpleQueue())
         self._lock = threading.Lock()
         self._client_channels: dict[tuple[int, int], tuple[str, str]] = {}
         self._topic_of_id: dict[int, str] = {}
+        # With the relay (arm_sim.live_front) the SDK listens on a loopback port of its own
+        # and the front on host:port, accepting both names of the protocol.
+        sdk_host, sdk_port = (BACKEND_HOST, 0) if relay else (host, port)
         try:
             self.server = foxglove.start_server(
-                name=name, host=host, port=port, context=self.context,
+                name=name, host=sdk_host, port=sdk_port, context=self.context,
                 capabilities=[Capability.ClientPublish, Capability.Time],
                 supported_encodings=list(CLIENT_ENCODINGS),
                 server_listener=cast(Any, self))  # the callbacks it uses, below
         except RuntimeError as exc:
-            raise OSError(f'cannot serve on {host}:{port}: {exc}') from None
+            raise OSError(f'cannot serve on {sdk_host}:{sdk_port}: {exc}') from None
+        self.sdk_port = int(self.server.port)
+        self.front: Any = None
+        if relay:
+            from arm_sim.live_front import Front
+
+            try:
+                self.front = Front(host, port, self.sdk_port, on_refusal=self._refused,
+                                   backend_host=BACKEND_HOST)
+            except OSError as exc:
+                self.server.stop()
+                raise OSError(f'cannot serve on {host}:{port}: '
+                              f'{exc.strerror or exc}') from None
         self.host = host
-        self.port = int(self.server.port)
+        self.port = int(self.front.port) if self.front is not None else self.sdk_port
         self._tf: Any = None  # the FrameTransforms channel, made at the first use
+
+    def _refused(self, text: str) -> None:
+        self.incoming.put(ConnectionRefusal(text))
 
     @property
     def url(self) -> str:
@@ -403,16 +442,16 @@ class Bridge:
         level = self._fox.StatusLevel.Warning if warning else self._fox.StatusLevel.Info
         self.server.publish_status(message, level)
 
-    def poll(self, limit: int = 1000) -> list[ClientMessage | str]:
+    def poll(self, limit: int = 1000) -> list[ClientMessage | ConnectionRefusal | str]:
         """Send latched topics again to new subscribers, and return what clients sent
-        since the last call (a :class:`ClientMessage`, or a str: a refusal to report),
-        at most ``limit`` items."""
+        since the last call (a :class:`ClientMessage`, a :class:`ConnectionRefusal`, or a
+        str: a refused client channel), at most ``limit`` items."""
         with self._lock:
             again = [(t, self.last[t]) for t in self.resend if t in self.last]
             self.resend.clear()
         for topic, (data, log_time) in again:
             self.channels[topic].log(data, log_time=log_time)
-        out: list[ClientMessage | str] = []
+        out: list[ClientMessage | ConnectionRefusal | str] = []
         for _ in range(limit):
             try:
                 out.append(self.incoming.get_nowait())
@@ -422,6 +461,8 @@ class Bridge:
 
     def stop(self) -> None:
         """Stop the server (clients are disconnected)."""
+        if self.front is not None:
+            self.front.stop()
         self.server.stop()
 
     # ------------------------------------------------------------ listener (SDK threads)

@@ -13,6 +13,13 @@ forwards each message's CDR bytes on its channel at its receive time on simulate
 * ``/tf`` (``foxglove.FrameTransforms``): ``base_link -> link1 -> link2 -> tool0`` from
   each joint state, stamped with its header stamp (:func:`arm_sim.live.arm_transforms`).
 
+Clients connect with either name of the protocol, ``foxglove.sdk.v1`` (Foxglove) or
+``foxglove.websocket.v1`` (``@foxglove/ws-protocol``, Lichtblick, PlotJuggler): the
+server's front (:mod:`arm_sim.live_front`) listens on ``host``:``port`` and relays to the
+SDK's server on a loopback port of its own. A handshake it refuses (no subprotocol, or
+neither of these) gets HTTP 400 with the reason and is reported (``refused_connection``,
+naming what the client offered).
+
 A client's ``goal_pose`` (PoseStamped, ``cdr`` or ``json``: Foxglove's "Publish pose") is
 published into ROS on ``goal_pose``. Start it with ``arm-sim bringup --foxglove [PORT]`` or
 ``arm-sim demo --foxglove [PORT]``; it logs ``serving ws://HOST:PORT`` once clients can
@@ -61,6 +68,7 @@ from arm_sim.live import (
     TF_TOPIC,
     Bridge,
     ClientMessage,
+    ConnectionRefusal,
     arm_transforms,
     cdr_header,
     cdr_string,
@@ -72,7 +80,8 @@ from arm_sim.live import (
 )
 
 SUMMARY = '''
-Serves the suite's topics over the Foxglove WebSocket protocol (foxglove-sdk): each topic
+Serves the suite's topics over the Foxglove WebSocket protocol (foxglove-sdk; subprotocol
+foxglove.sdk.v1 or foxglove.websocket.v1, other handshakes refused with the reason): each topic
 as a channel (cdr, ros2msg schema), raw CDR forwarded at its receive time on simulated time;
 /robot_description (the URDF from the robot parameters) and /tf (foxglove.FrameTransforms
 base_link -> link1 -> link2 -> tool0 from the joint states) for the 3D panel; a client's
@@ -86,7 +95,8 @@ LIVE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('port', 'int', DEFAULT_PORT, 'TCP port of the WebSocket server (0: a free one, '
               'logged)', minimum=0, maximum=65535, read_only=True),
     ParamSpec('host', 'string', '127.0.0.1', 'Address the server listens on (127.0.0.1: this '
-              'machine only)', read_only=True),
+              'machine only; 0.0.0.0: every interface). The SDK itself listens on a loopback '
+              'port behind it', read_only=True),
 )
 POLL_PERIOD = 0.02  # s (wall): how often client messages and new subscriptions are handled
 QUEUE_DEPTH = 100  # messages each subscription keeps
@@ -222,7 +232,9 @@ class LiveNode(Node):
             return
         for item in items:
             try:
-                if isinstance(item, str):
+                if isinstance(item, ConnectionRefusal):  # no client to tell: log it
+                    self.diag.problem('refused_connection', item.text)
+                elif isinstance(item, str):
                     self._tell_clients('refused_channel', item)
                 else:
                     self._publish(item)

@@ -1,0 +1,72 @@
+// A stock Foxglove WebSocket client for test/test_live_client.py: @foxglove/ws-protocol's
+// FoxgloveClient over the `ws` package, offering only FoxgloveClient.SUPPORTED_SUBPROTOCOL
+// (foxglove.websocket.v1), as Lichtblick and PlotJuggler do.
+//
+//   node client.js ws://HOST:PORT
+//
+// Prints what it receives as JSON lines on stdout ({"event": ...}) and takes commands as
+// JSON lines on stdin:
+//   {"cmd": "subscribe", "topic": "/joint_states"}
+//   {"cmd": "advertise", "topic": "/goal_pose", "encoding": "json", "schemaName": "..."}
+//   {"cmd": "publish", "channelId": 1, "text": "{...}"}   (clientPublish, UTF-8 payload)
+//   {"cmd": "close"}
+"use strict";
+const readline = require("readline");
+const WebSocket = require("ws");
+const { FoxgloveClient } = require("@foxglove/ws-protocol");
+
+const url = process.argv[2];
+const emit = (event) => process.stdout.write(JSON.stringify(event) + "\n");
+const ws = new WebSocket(url, [FoxgloveClient.SUPPORTED_SUBPROTOCOL]);
+ws.on("unexpected-response", (_req, res) => {
+  let body = "";
+  res.on("data", (chunk) => (body += chunk));
+  res.on("end", () => {
+    emit({ event: "refused", status: res.statusCode, body });
+    process.exit(3);
+  });
+});
+const client = new FoxgloveClient({ ws });
+const channels = new Map(); // topic -> channel
+const topicOfSub = new Map();
+
+client.on("open", () => emit({ event: "open", protocol: ws.protocol }));
+client.on("error", (err) => emit({ event: "error", message: String(err && err.message) }));
+client.on("close", (ev) => {
+  emit({ event: "close", code: ev.code });
+  process.exit(0);
+});
+client.on("serverInfo", (info) => emit({ event: "serverInfo", info }));
+client.on("status", (status) => emit({ event: "status", status }));
+client.on("advertise", (chans) => {
+  for (const ch of chans) channels.set(ch.topic, ch);
+  emit({ event: "advertise", channels: chans });
+});
+client.on("time", (t) => emit({ event: "time", timestamp: t.timestamp.toString() }));
+client.on("message", (m) => {
+  const data = Buffer.from(m.data.buffer, m.data.byteOffset, m.data.byteLength);
+  emit({
+    event: "message",
+    topic: topicOfSub.get(m.subscriptionId),
+    timestamp: m.timestamp.toString(),
+    data: data.toString("base64"),
+  });
+});
+
+readline.createInterface({ input: process.stdin }).on("line", (line) => {
+  const c = JSON.parse(line);
+  if (c.cmd === "subscribe") {
+    const ch = channels.get(c.topic);
+    if (!ch) return emit({ event: "error", message: `no channel ${c.topic}` });
+    topicOfSub.set(client.subscribe(ch.id), c.topic);
+    emit({ event: "subscribed", topic: c.topic });
+  } else if (c.cmd === "advertise") {
+    const id = client.advertise({ topic: c.topic, encoding: c.encoding, schemaName: c.schemaName });
+    emit({ event: "advertised", topic: c.topic, channelId: id });
+  } else if (c.cmd === "publish") {
+    client.sendMessage(c.channelId, new TextEncoder().encode(c.text));
+    emit({ event: "published", channelId: c.channelId });
+  } else if (c.cmd === "close") {
+    client.close();
+  }
+});

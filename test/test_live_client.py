@@ -1,0 +1,173 @@
+"""A stock Foxglove client against the live node: npm's ``@foxglove/ws-protocol``
+``FoxgloveClient`` (test/js/client.js), which offers only ``foxglove.websocket.v1``, gets
+the simulator's joint states and publishes a goal; a client offering something else is
+refused with the reason in the node's log."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import re
+import shutil
+import subprocess
+import threading
+from pathlib import Path
+
+import pytest
+from geometry_msgs.msg import PoseStamped
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
+
+from arm_sim.launcher import config_file
+
+websockets = pytest.importorskip('websockets')
+pytest.importorskip('foxglove')
+InvalidStatus = pytest.importorskip('websockets.exceptions').InvalidStatus
+
+JS = Path(__file__).parent / 'js'
+CONFIG = config_file()
+
+
+@pytest.fixture(scope='module')
+def js_client() -> list[str]:
+    """The command that runs test/js/client.js, its packages installed (``npm ci`` from
+    the lock file, once); skipped with the reason when node or npm cannot provide them."""
+    node, npm = shutil.which('node'), shutil.which('npm')
+    if not node or not npm:
+        pytest.skip('node and npm are needed for the @foxglove/ws-protocol client')
+    installed = JS / 'node_modules' / '@foxglove' / 'ws-protocol' / 'package.json'
+    if not installed.exists() or installed.stat().st_mtime < (
+            JS / 'package-lock.json').stat().st_mtime:
+        try:
+            res = subprocess.run([npm, 'ci', '--no-audit', '--no-fund'], cwd=JS,
+                                 capture_output=True, text=True, timeout=180)
+        except subprocess.TimeoutExpired:
+            pytest.skip('npm ci in test/js took over 180 s (registry unreachable?)')
+        if res.returncode != 0:
+            tail = ' '.join((res.stderr or res.stdout).strip().splitlines()[-3:])
+            pytest.skip(f'npm ci in test/js failed (registry unreachable?): {tail}')
+    return [node, str(JS / 'client.js')]
+
+
+class JsClient:
+    """client.js as a process: its events (JSON lines) collected by a thread."""
+
+    def __init__(self, cmd: list[str], url: str) -> None:
+        self.proc = subprocess.Popen(cmd + [url], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True)
+        self.events: list[dict] = []
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:  # type: ignore[union-attr]
+            self.events.append(json.loads(line))
+
+    def of(self, kind: str) -> list[dict]:
+        return [e for e in list(self.events) if e['event'] == kind]
+
+    def send(self, **cmd) -> None:
+        self.proc.stdin.write(json.dumps(cmd) + '\n')  # type: ignore[union-attr]
+        self.proc.stdin.flush()  # type: ignore[union-attr]
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            try:
+                self.send(cmd='close')
+                self.proc.wait(10)
+            except (OSError, subprocess.TimeoutExpired):
+                self.proc.kill()
+                self.proc.wait()
+        self.reader.join(5)
+
+    def stderr(self) -> str:
+        return self.proc.stderr.read() if self.proc.poll() is not None else ''  # type: ignore
+
+
+async def _refused(url: str) -> tuple[int, str]:
+    with pytest.raises(InvalidStatus) as err:
+        async with websockets.connect(url, subprotocols=['foxglove.websocket.v2', 'mqtt']):
+            pass
+    return err.value.response.status_code, err.value.response.body.decode()
+
+
+def test_a_stock_foxglove_client_gets_the_simulators_joint_states_and_publishes_a_goal(
+        ros, launch, js_client):
+    """The live node and the simulator (real time, 100 Hz); ``FoxgloveClient`` offering
+    ``foxglove.websocket.v1`` is answered with that name, gets serverInfo and the channels,
+    subscribes to /joint_states and gets states equal, field by field, to those the
+    simulator published (matched by stamp: this test's own subscription sees them too);
+    its JSON goal on /goal_pose is published into ROS. A client offering other
+    subprotocols gets 400 with the reason, which the node logs."""
+    states = ros.collect(JointState, 'joint_states')
+    goals = ros.collect(PoseStamped, 'goal_pose')
+    live = launch('live', params={'port': 0})
+    launch('simulator', params_file=CONFIG, params={'timing_mode': 'real_time'})
+    found = ros.wait_for(lambda: re.search(r'serving (ws://\S+)', live.output()), timeout=30,
+                         what='the live node to serve')
+    url = found.group(1)
+    client = JsClient(js_client, url)
+    try:
+        def channels() -> dict[str, dict]:
+            return {c['topic']: c for e in client.of('advertise') for c in e['channels']}
+
+        ros.wait_for(lambda: client.of('serverInfo') and '/joint_states' in channels()
+                     or client.proc.poll() is not None, timeout=20,
+                     what='serverInfo and the channels')
+        assert client.proc.poll() is None, (client.events, client.stderr())
+        assert client.of('open')[0]['protocol'] == 'foxglove.websocket.v1'
+        info = client.of('serverInfo')[0]['info']
+        assert info['name'] == 'arm_sim' and {'clientPublish', 'time'} <= set(
+            info['capabilities'])
+        ch = channels()['/joint_states']
+        assert (ch['encoding'], ch['schemaEncoding'], ch['schemaName']) == (
+            'cdr', 'ros2msg', 'sensor_msgs/msg/JointState')
+        client.send(cmd='subscribe', topic='/joint_states')
+
+        def received() -> list[JointState]:
+            return [deserialize_message(base64.b64decode(e['data']), JointState)
+                    for e in client.of('message') if e['topic'] == '/joint_states']
+
+        def stamp(m: JointState) -> tuple[int, int]:
+            return m.header.stamp.sec, m.header.stamp.nanosec
+
+        def matched() -> list[tuple[JointState, JointState]]:
+            published = {stamp(m): m for m in states}
+            return [(m, published[stamp(m)]) for m in received() if stamp(m) in published]
+
+        pairs = ros.wait_for(lambda: len(matched()) >= 20 and matched(), timeout=20,
+                             what='20 joint states the simulator published, via the client')
+        for got, sent in pairs:
+            assert (list(got.name), list(got.position), list(got.velocity),
+                    list(got.effort), got.header.frame_id) == (
+                list(sent.name), list(sent.position), list(sent.velocity),
+                list(sent.effort), sent.header.frame_id)
+
+        # clientAdvertise + clientPublish: a JSON goal (what Foxglove's Publish pose sends).
+        client.send(cmd='advertise', topic='/goal_pose', encoding='json',
+                    schemaName='geometry_msgs/msg/PoseStamped')
+        cid = ros.wait_for(lambda: client.of('advertised'), what='the advertisement')[0][
+            'channelId']
+        goal = json.dumps({'header': {'stamp': {'sec': 1, 'nanosec': 5},
+                                      'frame_id': 'base_link'},
+                           'pose': {'position': {'x': 0.5, 'y': 1.2}}})
+        # Sent again while not yet published: the server takes the advertisement a moment
+        # after it is sent.
+        ros.wait_for(lambda: goals or client.send(cmd='publish', channelId=cid, text=goal),
+                     timeout=20, what='the client goal published into ROS')
+        g = goals[0]
+        assert (g.header.stamp.nanosec, g.header.frame_id, g.pose.position.x,
+                g.pose.position.y) == (5, 'base_link', 0.5, 1.2)
+        assert not client.of('error'), client.of('error')
+    finally:
+        client.close()
+
+    # A client offering neither name: 400 with the reason, logged by the node.
+    status, body = asyncio.run(asyncio.wait_for(_refused(url), 20))
+    reason = 'offered subprotocols foxglove.websocket.v2, mqtt; accepted: foxglove.sdk.v1, ' \
+             'foxglove.websocket.v1'
+    assert status == 400 and reason in body, body
+    ros.wait_for(lambda: reason in live.output(), timeout=10, what='the refusal in the log')
+    assert live.alive(), live.output()[-3000:]
