@@ -14,6 +14,13 @@ errors. Measured in this one process:
    few hundred of the scenarios, extrapolated to 10,000; the ratio of scenario-steps per
    second, target >= 20x.
 
+4. the real arm (config/real_arm.yaml's values: motors, stick/slip friction, noise, 14-bit
+   encoders, one period of sensing delay) against the ideal arm, in this one process (one
+   worker, the same scenarios otherwise): the cost per scenario-step of each and their
+   ratio, at 1 kHz (the workload above, 2 s lines) and at the demo's 100 Hz (10 physics
+   steps per control period). The issue's target: < 1.5x (``--real-arm-only`` runs just
+   this part).
+
 No asserts: it prints the figures, the ratios and the machine's load average (the machine
 may be shared). Run from the repo root::
 
@@ -28,6 +35,7 @@ import math
 import os
 import sys
 import time
+from typing import Any
 
 import numpy as np
 
@@ -39,7 +47,15 @@ except ImportError:  # run as `python bench/bench_sweep.py` without PYTHONPATH
 
 TARGET_WALL = 15.0   # s for 10,000 scenarios
 TARGET_RATIO = 20.0  # scenario-steps/s, sweep vs one simulate() per scenario
-VARIANTS = ({'law': 'computed_torque', 'kp': (100.0, 60.0), 'kd': (20.0, 12.0)},
+TARGET_REAL = 1.5    # real-arm cost per scenario-step / the ideal arm's (the issue's)
+#: config/real_arm.yaml's values (test/test_sweep_real_arm.py uses the same).
+REAL_ARM: dict[str, Any] = dict(gear_ratios=(100.0, 80.0), motor_inertias=(1.2e-5, 6e-6),
+                motor_damping=(1e-5, 1e-5), coulomb_friction=(1.5, 0.5),
+                static_friction=(1.95, 0.65), position_noise=(4e-4, 4e-4),
+                velocity_noise=(0.01, 0.01), encoder_resolution=(16384.0, 16384.0),
+                sensing_delay=1, noise_seed=1)
+VARIANTS: tuple[dict[str, Any], ...] = (
+            {'law': 'computed_torque', 'kp': (100.0, 60.0), 'kd': (20.0, 12.0)},
             {'law': 'pd_gravity', 'kp': (600.0, 300.0), 'kd': (60.0, 25.0)},
             {'law': 'pid', 'kp': (600.0, 300.0), 'kd': (60.0, 25.0), 'ki': (300.0, 150.0)},
             {'law': 'pd', 'kp': (600.0, 300.0), 'kd': (60.0, 25.0)})
@@ -56,10 +72,34 @@ def scenarios(count: int) -> list[sweep.Scenario]:
             for p in payloads:
                 for e in np.linspace(-0.2, 0.2, 10):
                     out.append(sweep.Scenario(
-                        task='straight_line', start=sweep.PS, goal=goal, duration=2.0,
+                        task='straight_line', start=(sweep.PS[0], sweep.PS[1]), goal=goal,
+                        duration=2.0,
                         hold=0.0, control_rate=1000.0, physics_step=0.001,
                         feasibility='ignore', payload=float(p), mass_error=float(e), **v))
     return out
+
+
+def real_arm_cost(count: int = 400) -> None:
+    """Print the cost per scenario-step of the real arm next to the ideal one (one process,
+    :func:`arm_sim.sweep.run_sweep` with one worker; the same ``count`` scenarios of the
+    workload, or of it at 100 Hz, with and without :data:`REAL_ARM`)."""
+    from dataclasses import replace
+
+    base = scenarios(400)[:: max(1, 400 // count)][:count]
+    print(f'\nthe real arm vs the ideal arm ({len(base)} scenarios, 1 worker; target < '
+          f'{TARGET_REAL:g}x):')
+    for rate, label in ((1000.0, '1 kHz, 1 physics step per period'),
+                        (100.0, '100 Hz, 10 physics steps per period')):
+        cost = {}
+        for name, extra in (('ideal', {}), ('real', REAL_ARM)):
+            work = [replace(s, control_rate=rate, **extra) for s in base]
+            started = time.perf_counter()
+            rows = sweep.run_sweep(work, workers=1)
+            cost[name] = (time.perf_counter() - started) / steps(rows)
+        ratio = cost['real'] / cost['ideal']
+        print(f'  {label}: ideal {cost["ideal"] * 1e6:.2f} us, real arm '
+              f'{cost["real"] * 1e6:.2f} us per scenario-step: {ratio:.2f}x '
+              f'({"met" if ratio < TARGET_REAL else "NOT met"})', flush=True)
 
 
 def steps(rows) -> int:
@@ -71,9 +111,14 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--quick', action='store_true', help='2,000 scenarios, 50 peer runs')
     ap.add_argument('--workers', type=int, default=2, help='worker processes (default 2)')
+    ap.add_argument('--real-arm-only', action='store_true',
+                    help='only the real arm vs the ideal arm (part 4)')
     ap.add_argument('--peers', type=int, default=None,
                     help='scenarios run one by one through simulate() (default 300)')
     args = ap.parse_args()
+    if args.real_arm_only:
+        real_arm_cost(200 if args.quick else 400)
+        return 0
     count = 2000 if args.quick else 10_000
     peers = args.peers or (50 if args.quick else 300)
     work = scenarios(count)
@@ -111,6 +156,7 @@ def main() -> int:
     print(f'ratios: sweep / peer {rate / single_rate:.0f}x (target >= {TARGET_RATIO:g}x: '
           f'{"met" if rate / single_rate >= TARGET_RATIO else "NOT met"}); per core '
           f'{one_rate / single_rate:.0f}x; parallel speed-up {rate / one_rate:.2f}x')
+    real_arm_cost(200 if args.quick else 400)
     print(f'load average at the end {load:.2f}')
     return 0
 

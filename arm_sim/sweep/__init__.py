@@ -57,6 +57,14 @@ empty / null where undefined):
 * only in a sweep whose spec gives a ``control_model`` (a params file or a mapping: the
   controller's model, instead of ``mass_error``/``length_error``, which are then empty):
   ``control_model`` (the file as given, ``inline``, or empty);
+* only in a sweep whose spec gives a real-arm setting (motors, friction, sensors, delays;
+  docs/sweeps.md): the settings (``gear_ratio``, ``motor_inertia``, ``motor_damping``,
+  ``coulomb_friction``, ``static_friction``, ``position_noise``, ``velocity_noise``,
+  ``encoder_resolution`` per joint; ``sensing_delay``, ``actuation_delay``,
+  ``noise_seed``), ``friction_band`` [rad per joint: static / kp, pd and pd_gravity],
+  ``hold_oscillation`` [rad per joint: peak-to-peak over the last half of the hold],
+  ``friction_loss`` [J]; with ``margins: true`` also ``pole_radius`` (the linearised
+  loop's largest pole |z|, delays included);
 * only in a sweep whose spec says ``margins: true`` (:mod:`~arm_sim.sweep.margins`: the
   linearised sampled-data loop at the goal's joint angles, each joint's loop broken at its
   torque with the other closed): ``phase_margin`` [deg per joint], ``gain_margin`` [dB per

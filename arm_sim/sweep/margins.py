@@ -6,7 +6,9 @@ scenario's own objects: its law, gains (:class:`~arm_control.laws.Gains`), plant
 (:meth:`Scenario.plant <arm_sim.sweep.spec.Scenario.plant>`, payload included), the
 controller's model (:meth:`Scenario.model <arm_sim.sweep.spec.Scenario.model>`), the
 control period ``1 / control_rate`` [s], about the goal's joint angles (the plan's last
-point, the set point the arm comes to rest near), lockstep (no extra delay). Its margins
+point, the set point the arm comes to rest near), with the scenario's ``sensing_delay`` plus
+``actuation_delay`` as the loop's extra delay (whole periods; lockstep without them). The
+plant's friction is not in it (no linearisation: the loop about a stuck joint is open). Its margins
 are :func:`arm_control.closed_loop.margins` of each joint's loop broken at its plant input
 with the other joint's loop closed (:meth:`ClosedLoop.loop
 <arm_control.closed_loop.ClosedLoop.loop>`), as :func:`~arm_control.closed_loop.
@@ -21,6 +23,7 @@ interpolated on a grid finer than ``loop_margins``' 6000 points (tested to agree
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -62,15 +65,18 @@ def scenario_loop(s: Scenario, centre) -> ClosedLoop:
     :func:`closed_loop` does: no rest position found)."""
     gains = Gains(kp=s.kp, kd=s.kd, ki=s.ki, i_clamp=s.i_clamp)
     return closed_loop(s.law, gains, s.plant(), np.asarray(centre, dtype=float),
-                       1.0 / s.control_rate, model=s.model())
+                       1.0 / s.control_rate, model=s.model(),
+                       delay=s.sensing_delay + s.actuation_delay)
 
 
-def scenario_margins(s: Scenario, centre) -> tuple[dict[str, list[float]], str | None]:
+def scenario_margins(s: Scenario, centre) -> tuple[dict[str, Any], str | None]:
     """The margin columns of scenario ``s`` linearised about ``centre`` (2,) rad: a dict
-    ``{name: [joint 1, joint 2]}`` over :data:`MARGIN_NAMES` (NaN where undefined), and
+    ``{name: [joint 1, joint 2]}`` over :data:`MARGIN_NAMES` (NaN where undefined) and
+    ``pole_radius`` (the largest closed-loop pole magnitude, a float: > 1 unstable), and
     why they are undefined or what to know about them (None when there is nothing to say):
     a law without a linearisation, no rest position, an unstable linearised loop."""
-    undefined = {k: [math.nan, math.nan] for k in MARGIN_NAMES}
+    undefined: dict[str, Any] = {k: [math.nan, math.nan] for k in MARGIN_NAMES}
+    undefined['pole_radius'] = math.nan
     if s.law not in LINEAR_LAWS:
         return undefined, f'margins: no linearisation of law {s.law!r}'
     try:
@@ -78,9 +84,10 @@ def scenario_margins(s: Scenario, centre) -> tuple[dict[str, list[float]], str |
     except (ValueError, np.linalg.LinAlgError) as exc:
         return undefined, f'margins: {exc}'
     ms = refined_margins(loop)
-    out = {'phase_margin': [m.phase_deg for m in ms], 'gain_margin': [m.gain_db for m in ms],
-           'bandwidth': [m.gain_crossover for m in ms]}
     pole = float(np.abs(loop.eigenvalues()).max())
+    out: dict[str, Any] = {'phase_margin': [m.phase_deg for m in ms],
+                           'gain_margin': [m.gain_db for m in ms],
+                           'bandwidth': [m.gain_crossover for m in ms], 'pole_radius': pole}
     note = None
     if not pole < 1.0:
         note = (f'margins: the linearised loop is unstable (largest pole |z| = {pole:.4g}): '

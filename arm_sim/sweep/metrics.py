@@ -13,10 +13,15 @@ from typing import Any
 import numpy as np
 
 from arm_bag import metrics
-from arm_sim.sweep.columns import COLUMNS, MARGIN_NAMES, put
+from arm_sim.sweep.columns import COLUMNS, MARGIN_NAMES, REAL_COLUMNS, REAL_PER_JOINT, put
 from arm_sim.sweep.margins import scenario_margins
 from arm_sim.sweep.plan import Planned
-from arm_sim.sweep.spec import ROBOT, Scenario
+from arm_sim.sweep.spec import REAL_SETTINGS, ROBOT, Scenario
+
+#: The laws whose ``friction_band`` is defined: kp in N m/rad acts alone at rest.
+BAND_LAWS = ('pd', 'pd_gravity')
+#: ``hold_oscillation`` looks at the last this fraction of the hold.
+HOLD_WINDOW = 0.5
 
 
 @dataclass(frozen=True)
@@ -54,6 +59,15 @@ def new_row(index: int, s: Scenario, planned: Planned) -> dict:
     if s.control_model is not None:  # the model is the file's or the mapping's: no errors
         row['mass_error'] = row['length_error'] = math.nan
     row['control_model'] = '' if s.control_model is None else s.control_model.source
+    row.update(dict.fromkeys(REAL_COLUMNS, math.nan))
+    for col, name in zip(REAL_PER_JOINT, REAL_SETTINGS):
+        put(row, col, getattr(s, name))
+    put(row, 'static_friction', s.friction().static.tolist())  # 0 given: the Coulomb value
+    for name in ('sensing_delay', 'actuation_delay', 'noise_seed'):
+        row[name] = getattr(s, name)
+    if s.law in BAND_LAWS:
+        put(row, 'friction_band', [f / k if k > 0 else math.inf for f, k in
+                                   zip(s.friction().static.tolist(), s.kp)])
     return row
 
 
@@ -92,6 +106,7 @@ def add_margins(row: dict, s: Scenario, planned: Planned) -> dict:
     reason appended to ``message``)."""
     for name in MARGIN_NAMES:
         put(row, name, None)
+    row['pole_radius'] = math.nan
     if planned.set_point is None:
         return row
     values, note = scenario_margins(s, planned.set_point)
@@ -112,4 +127,7 @@ def finish_row(row: dict, s: Scenario, planned: Planned, run: Run) -> dict:
     for k, v in segment_metrics(run.t, run.q, run.qd, run.effort, run.q_des, planned,
                                 s.effort_limits).items():
         put(row, k, v)
+    tail = run.t >= run.t[-1] - HOLD_WINDOW * s.hold
+    put(row, 'hold_oscillation', np.ptp(run.q[tail], axis=0).tolist())
+    row['friction_loss'] = metrics.friction_loss(s.friction().coulomb, run.q)
     return row

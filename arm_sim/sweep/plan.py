@@ -1,8 +1,8 @@
 """Planning a sweep's scenario: the plan the controller would track, or why there is none.
 
-Pure: no rclpy. The planner's :func:`~arm_planner.planner.plan_goal` on the robot without
-payload or model errors, as the planner node plans it; knot times rounded to whole ns, as
-the controller receives them.
+Pure: no rclpy. The planner's :func:`~arm_planner.planner.plan_goal` on the robot (its
+motors included) without payload or model errors, as the planner node plans it; knot
+times rounded to whole ns, as the controller receives them.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from arm_control.trajectory import Trajectory
 from arm_dynamics.limits import JointLimits
 from arm_planner.kinematics import PlanningError
 from arm_planner.planner import PlannerSettings, plan_goal
-from arm_sim.sweep.spec import ROBOT, Scenario
+from arm_sim.sweep.spec import ROBOT, Scenario, robot_with_motors
 
 FASTEST_REQUEST = 1e-3    # s: asked of the planner for 'fastest' (stretched to fit)
 IGNORE_LIMITS = (1e9, 1e9)  # N m: the planner's limits under feasibility 'ignore'
@@ -38,7 +38,7 @@ class Planned:
 @functools.lru_cache(maxsize=4096)
 def _plan(task: str, start: tuple[float, float], goal: tuple[float, float], elbow: str,
           duration: float | str, time_scaling: str, profile: str, feasibility: str,
-          limits: tuple[float, float]) -> Planned:
+          limits: tuple[float, float], motors: tuple = ()) -> Planned:
     q_start = ROBOT.inverse_kinematics(np.array(start), elbow)
     bad = ROBOT.workspace_violation(np.array(start), 0.01, 0.0, 'start')
     if bad:
@@ -49,7 +49,8 @@ def _plan(task: str, start: tuple[float, float], goal: tuple[float, float], elbo
         regulation_profile=profile,
         feasibility='stretch' if feasibility in ('ignore', 'stretch') else 'refuse')
     try:
-        plan = plan_goal(ROBOT, IGNORE_LIMITS if feasibility == 'ignore' else limits,
+        arm = robot_with_motors(*motors) if motors else ROBOT
+        plan = plan_goal(arm, IGNORE_LIMITS if feasibility == 'ignore' else limits,
                          q_start, goal, settings, JointLimits())
     except PlanningError as exc:
         return Planned(None, q_start, refused=str(exc))

@@ -163,19 +163,24 @@ def _run_batch(scenarios: Sequence[Scenario], planned: Sequence[Planned], law: s
     kp, kd, ki, clamp = (np.array([getattr(s, g) for s in scenarios])
                          for g in ('kp', 'kd', 'ki', 'i_clamp'))
     limits = np.array([s.effort_limits for s in scenarios])
+    real: dict = {}
+    if any(s.real for s in scenarios):
+        real = dict(friction=[s.friction() for s in scenarios],
+                    sensors=[s.sensor_settings() for s in scenarios],
+                    actuation_delay=[s.actuation_delay for s in scenarios])
     sim = BatchSimulator([s.plant() for s in scenarios],
                          q0=np.array([p.q_start for p in planned]),
                          qd0=np.zeros((len(scenarios), 2)), effort_limits=limits,
                          physics_step_ns=step_ns, control_period_ns=step_ns * substeps,
-                         velocity_limit=VELOCITY_LIMIT)
+                         velocity_limit=VELOCITY_LIMIT, **real)
     integral = np.zeros((len(scenarios), 2))
     qs, qds, efforts = (np.empty((n + 1, len(scenarios), 2)) for _ in range(3))
     qs[0], qds[0] = sim.q, sim.qd
     for k in range(n):
         dtk = 0.0 if k == 0 else t[k] - t[k - 1]
-        raw, integral = law_torque(law, kp, kd, ki, clamp, limits, model, integral, sim.q,
-                                   sim.qd, ref_q[k, index], ref_qd[k, index],
-                                   ref_qdd[k, index], dtk)
+        mq, mqd = sim.measured  # the true state itself without sensors
+        raw, integral = law_torque(law, kp, kd, ki, clamp, limits, model, integral, mq, mqd,
+                                   ref_q[k, index], ref_qd[k, index], ref_qdd[k, index], dtk)
         sim.advance(np.clip(raw, -limits, limits))  # the controller saturates its command
         efforts[k + 1] = sim.applied
         qs[k + 1], qds[k + 1] = sim.q, sim.qd
@@ -198,8 +203,10 @@ def run_single(index: int, s: Scenario, keep_run: bool = False, margins: bool = 
     """One scenario the nodes' way, one state at a time: the controller core
     (:class:`~arm_control.core.ControllerCore` with :class:`~arm_control.laws.ControlLaw`)
     as the torque law of :func:`~arm_dynamics.integrate.simulate` at the control period,
-    the plant's single-state RK4. Returns the result row (and the run). No divergence
-    handling: for comparisons and benchmarks."""
+    the plant's single-state RK4. A real-arm scenario (:attr:`Scenario.real
+    <arm_sim.sweep.spec.Scenario.real>`) runs on the simulator node's core instead
+    (:func:`run_core`). Returns the result row (and the run). No divergence handling
+    (but in :func:`run_core`): for comparisons and benchmarks."""
     from arm_control.laws import ControlLaw
 
     planned = _within_limits(s, plan_scenario(s))
@@ -208,6 +215,10 @@ def run_single(index: int, s: Scenario, keep_run: bool = False, margins: bool = 
         add_margins(row, s, planned)
     if planned.trajectory is None:
         return (row, None) if keep_run else row
+    if s.real:
+        run = run_core(s, planned)
+        finish_row(row, s, planned, run)
+        return (row, run) if keep_run else row
     step_ns, substeps = s.timing()
     dt = step_ns * 1e-9
     ticks = _ticks(s, planned)
@@ -230,6 +241,52 @@ def run_single(index: int, s: Scenario, keep_run: bool = False, margins: bool = 
               np.vstack([tau[:1], tau[:-1]]), np.array(refs[:ticks + 1]))
     finish_row(row, s, planned, run)
     return (row, run) if keep_run else row
+
+
+def run_core(s: Scenario, planned: Planned) -> Run:
+    """The closed loop of one scenario through the nodes' cores, one state at a time: the
+    simulator's :class:`~arm_dynamics.simulation.SimulatorCore` (the scenario's plant,
+    friction, sensors, actuation delay, divergence check) in lockstep with the
+    controller's :class:`~arm_control.core.ControllerCore` on the measurement (what the
+    simulator publishes on ``joint_states``). The run records the true state."""
+    from arm_control.laws import ControlLaw
+    from arm_dynamics.sensors import SensorModel
+    from arm_dynamics.simulation import SimulatorCore
+
+    assert planned.trajectory is not None
+    step_ns, substeps = s.timing()
+    ticks = _ticks(s, planned)
+    t = (np.arange(ticks + 1) * substeps) * (step_ns * 1e-9)
+    core = SimulatorCore(s.plant(), q0=planned.q_start, qd0=np.zeros(2),
+                         effort_limits=s.effort_limits, physics_step_ns=step_ns,
+                         control_period_ns=step_ns * substeps, velocity_limit=VELOCITY_LIMIT,
+                         joint_names=JOINT_NAMES, sensors=SensorModel(2, **s.sensor_settings()),
+                         actuation_delay=s.actuation_delay, friction=s.friction())
+    law = ControlLaw(s.law, Gains(kp=s.kp, kd=s.kd, ki=s.ki, i_clamp=s.i_clamp), s.model(),
+                     s.effort_limits)
+    controller = ControllerCore(JOINT_NAMES, law)
+    controller.trajectory, controller.start = planned.trajectory, 0.0
+    qs, qds, efforts = (np.zeros((ticks + 1, 2)) for _ in range(3))
+    refs = np.zeros((ticks + 1, 2))
+    qs[0], qds[0] = core.q, core.qd
+    died = -1
+    for k in range(ticks + 1):
+        mq, mqd = core.measured if core.measuring else (core.q, core.qd)
+        step = controller.update(float(t[k]), mq, mqd)
+        refs[k] = step.q_des
+        if k == ticks:
+            break
+        core.set_command(step.command.tau.tolist())
+        core.advance()
+        if core.diverged and died < 0:
+            died = k + 1
+        qs[k + 1], qds[k + 1], efforts[k + 1] = core.q, core.qd, core.applied
+    efforts[0] = efforts[min(1, ticks)]
+    msg = None
+    if died >= 0:
+        msg = (f'diverged at t={t[died]:.3f} s (|qd| > {VELOCITY_LIMIT:g} rad/s or '
+               'non-finite)')
+    return Run(t, qs, qds, efforts, refs, msg)
 
 
 # ---------------------------------------------------------------------- orchestration

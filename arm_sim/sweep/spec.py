@@ -14,6 +14,7 @@ one line naming the key, the value and where (:class:`SpecError`).
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from collections.abc import Iterable, Sequence
@@ -26,13 +27,22 @@ import numpy as np
 from arm_common.params import ParamSpec, resolve
 from arm_control.laws import BATCH_LAWS, Gains
 from arm_control.model_params import CONTROL_MODEL_PARAMS, MODEL_KEYS, controller_model
+from arm_dynamics.friction import JointFriction
 from arm_dynamics.limits import DEFAULT_EFFORT
 from arm_dynamics.models import joint_count
 from arm_dynamics.robot import ROBOT_PARAMS
+from arm_dynamics.sensors import whole_counts_reason
 from arm_dynamics.two_link import TwoLinkArm
 from arm_planner.planner import FEASIBILITY, MAX_DURATION
 from arm_planner.time_scaling import KINDS
-from arm_sim.sweep.columns import COLUMNS, MARGIN_COLUMNS, MODEL_COLUMNS, columns
+from arm_sim.sweep.columns import (
+    COLUMNS,
+    MARGIN_COLUMNS,
+    MODEL_COLUMNS,
+    REAL_COLUMNS,
+    REAL_PER_JOINT,
+    columns,
+)
 
 # The limits that size a sweep's work, all checked before anything is built or run
 # (``arm-sim sweep --help`` and docs/sweeps.md state them).
@@ -117,7 +127,46 @@ SETTINGS: dict[str, ParamSpec] = {p.name: p for p in (
               maximum=1e6, strict_min=True, length=2),
     ParamSpec('hold', 'double', 1.0, 'simulated time after the motion ends', 's', minimum=0.0,
               maximum=MAX_DURATION),
+    # The real arm (docs/real-arm.md): the robot's motors and friction (planner, controller
+    # and plant know the motors, as every node reads the robot parameters; only the plant
+    # has friction), the simulator's sensors and actuation delay.
+    ParamSpec('gear_ratios', 'doubles', ROBOT.gear_ratios, 'gear reduction of each joint '
+              'motor (motor turns per joint turn)', '', minimum=0.0, strict_min=True,
+              maximum=1e4, length=2),
+    ParamSpec('motor_inertias', 'doubles', ROBOT.motor_inertias, 'rotor inertia of each '
+              'motor, motor side (the joint sees gear_ratio^2 times it)', 'kg m^2',
+              minimum=0.0, maximum=1e4, length=2),
+    ParamSpec('motor_damping', 'doubles', ROBOT.motor_damping, 'viscous friction of each '
+              'motor, motor side (the joint sees gear_ratio^2 times it)', 'N m s/rad',
+              minimum=0.0, maximum=1e4, length=2),
+    ParamSpec('coulomb_friction', 'doubles', (0.0, 0.0), 'Coulomb (sliding) friction of '
+              'each joint, link side (plant only; stick/slip exact)', 'N m', minimum=0.0,
+              maximum=1e4, length=2),
+    ParamSpec('static_friction', 'doubles', (0.0, 0.0), 'break-away friction of each joint: '
+              '0 = its coulomb_friction, else >= it', 'N m', minimum=0.0, maximum=1e4,
+              length=2),
+    ParamSpec('position_noise', 'doubles', (0.0, 0.0), 'standard deviation of the Gaussian '
+              'noise on each measured joint position', 'rad', minimum=0.0, maximum=10.0,
+              length=2),
+    ParamSpec('velocity_noise', 'doubles', (0.0, 0.0), 'standard deviation of the Gaussian '
+              'noise on each measured joint velocity', 'rad/s', minimum=0.0, maximum=1000.0,
+              length=2),
+    ParamSpec('encoder_resolution', 'doubles', (0.0, 0.0), 'encoder counts per revolution '
+              'of each joint, whole (the measured position rounded to a count); 0 = ideal',
+              'counts/rev', minimum=0.0, maximum=1e6, length=2),
+    ParamSpec('sensing_delay', 'int', 0, 'the controller sees the measurement of the state '
+              'k control periods old', 'periods', minimum=0, maximum=1000),
+    ParamSpec('actuation_delay', 'int', 0, 'the command is applied k control periods after '
+              'it answered its state (zero torque before)', 'periods', minimum=0,
+              maximum=1000),
+    ParamSpec('noise_seed', 'int', 0, 'seed of the measurement noise (numpy PCG64; the '
+              "simulator's noise_seed: the same seed, the same draws)", '', minimum=0,
+              maximum=1e9),
 )}
+#: The real-arm settings (their columns: :data:`~arm_sim.sweep.columns.REAL_COLUMNS`).
+REAL_SETTINGS = ('gear_ratios', 'motor_inertias', 'motor_damping', 'coulomb_friction',
+                 'static_friction', 'position_noise', 'velocity_noise', 'encoder_resolution',
+                 'sensing_delay', 'actuation_delay', 'noise_seed')
 #: The pairs that are tip positions (always [x, y]; other pairs may be one number).
 POINTS = ('start', 'goal')
 #: Per pair: the checks of one number given for both joints, of item 0 and of item 1
@@ -167,6 +216,20 @@ def check_setting(name: str, value: object) -> Any:
         raise ValueError(f"{name} must be a number of seconds or 'fastest', got {value!r}")
     if param.kind == 'double':
         return _number(param, value)
+    if param.kind == 'int':
+        if isinstance(value, np.integer):
+            value = value.item()
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)  # 2.0 from a linspace: the whole number it is
+        if isinstance(value, int) and not isinstance(value, bool) and abs(value) > 2 ** 62:
+            raise ValueError(f'{name} must be <= {param.maximum:g}, got an integer of '
+                             f'{value.bit_length()} bits')
+        reason = param.check(value)
+        if reason:
+            raise ValueError(f'{reason} (whole {param.unit or "number"}, range '
+                             f'[{param.minimum:g}, {param.maximum:g}])')
+        assert isinstance(value, int)
+        return value
     one, first, second = _ITEMS[name]
     if isinstance(value, (list, tuple, np.ndarray)):
         if len(value) == 2:
@@ -194,10 +257,11 @@ class ControlModel:
     source: str
     values: tuple[tuple[str, Any], ...]
 
-    def arm(self) -> TwoLinkArm:
+    def arm(self, robot: dict[str, Any] | None = None) -> TwoLinkArm:
         """The controller's model: ``control_model.<key>`` or the robot's ``<key>``, as
-        ``ControllerNode`` builds it."""
-        model = controller_model(dict(self.values))
+        ``ControllerNode`` builds it; ``robot`` overrides robot parameters (a scenario's
+        motors)."""
+        model = controller_model({**dict(self.values), **(robot or {})})
         assert isinstance(model, TwoLinkArm)  # checked by control_model_setting
         return model
 
@@ -306,10 +370,30 @@ class Scenario:
     physics_step: float = _default('physics_step')
     effort_limits: tuple[float, float] = _default('effort_limits')
     hold: float = _default('hold')
+    gear_ratios: tuple[float, float] = _default('gear_ratios')
+    motor_inertias: tuple[float, float] = _default('motor_inertias')
+    motor_damping: tuple[float, float] = _default('motor_damping')
+    coulomb_friction: tuple[float, float] = _default('coulomb_friction')
+    static_friction: tuple[float, float] = _default('static_friction')
+    position_noise: tuple[float, float] = _default('position_noise')
+    velocity_noise: tuple[float, float] = _default('velocity_noise')
+    encoder_resolution: tuple[float, float] = _default('encoder_resolution')
+    sensing_delay: int = _default('sensing_delay')
+    actuation_delay: int = _default('actuation_delay')
+    noise_seed: int = _default('noise_seed')
 
     def __post_init__(self) -> None:
         for f in fields(self):
             object.__setattr__(self, f.name, check_setting(f.name, getattr(self, f.name)))
+        for j, (s, c) in enumerate(zip(self.static_friction, self.coulomb_friction)):
+            if 0.0 < s < c:
+                raise ValueError(
+                    f'static_friction[{j}] = {s:g} N m is below coulomb_friction[{j}] = '
+                    f'{c:g} N m: the break-away torque is at least the sliding one (0 = '
+                    'equal to it)')
+        reason = whole_counts_reason(self.encoder_resolution)
+        if reason:
+            raise ValueError(reason)
         if self.control_model is not None and (self.mass_error or self.length_error):
             raise ValueError(f'control_model {self.control_model.source} and mass_error '
                              f'{self.mass_error:g} / length_error {self.length_error:g} '
@@ -354,18 +438,73 @@ class Scenario:
                              f'{self.physics_step:g} s')
         return step_ns, period_ns // step_ns
 
+    @property
+    def motors(self) -> tuple[tuple[float, float], tuple[float, float], tuple[float, float]]:
+        """``(gear_ratios, motor_inertias, motor_damping)``."""
+        return self.gear_ratios, self.motor_inertias, self.motor_damping
+
+    def robot(self) -> TwoLinkArm:
+        """The robot with this scenario's motors (the one every node builds from the robot
+        parameters): :data:`ROBOT` itself without motors."""
+        return robot_with_motors(*self.motors)
+
     def plant(self) -> TwoLinkArm:
-        """The simulated arm: the robot with ``payload`` kg at the tip of link 2
-        (:meth:`TwoLinkArm.with_payload <arm_dynamics.two_link.TwoLinkArm.with_payload>`)."""
-        return ROBOT.with_payload(self.payload)
+        """The simulated arm: the robot (its motors included) with ``payload`` kg at the
+        tip of link 2 (:meth:`TwoLinkArm.with_payload
+        <arm_dynamics.two_link.TwoLinkArm.with_payload>`)."""
+        return self.robot().with_payload(self.payload)
 
     def model(self) -> TwoLinkArm:
-        """The controller's model: the ``control_model``'s (:meth:`ControlModel.arm`), or
-        else the robot (without the payload) with the errors (:meth:`TwoLinkArm.with_errors
-        <arm_dynamics.two_link.TwoLinkArm.with_errors>`)."""
+        """The controller's model: the ``control_model``'s (:meth:`ControlModel.arm`; the
+        scenario's motors where it sets none), or else the robot (its motors, without the
+        payload) with the errors (:meth:`TwoLinkArm.with_errors
+        <arm_dynamics.two_link.TwoLinkArm.with_errors>`). No friction: the laws know none."""
         if self.control_model is not None:
-            return self.control_model.arm()
-        return ROBOT.with_errors(self.mass_error, self.length_error)
+            return self.control_model.arm(dict(zip(_MOTOR_KEYS, self.motors)))
+        return self.robot().with_errors(self.mass_error, self.length_error)
+
+    def friction(self) -> JointFriction:
+        """The plant's joint friction (a ``static_friction`` of 0: the joint's
+        ``coulomb_friction``), as the simulator node builds it."""
+        c = self.coulomb_friction
+        s = tuple(x if x > 0.0 else y for x, y in zip(self.static_friction, c))
+        return _friction(c, s)
+
+    def sensor_settings(self) -> dict[str, Any]:
+        """The keywords of :class:`~arm_dynamics.sensors.SensorModel` (``n`` apart)."""
+        return dict(position_noise=self.position_noise, velocity_noise=self.velocity_noise,
+                    encoder_resolution=self.encoder_resolution,
+                    sensing_delay=self.sensing_delay, seed=self.noise_seed)
+
+    @property
+    def sensing(self) -> bool:
+        """Whether the measurement can differ from the true state."""
+        return bool(any(self.position_noise) or any(self.velocity_noise)
+                    or any(self.encoder_resolution) or self.sensing_delay)
+
+    @property
+    def real(self) -> bool:
+        """Whether any real-arm setting (:data:`REAL_SETTINGS`) differs from its default."""
+        return any(getattr(self, k) != SETTINGS[k].default for k in REAL_SETTINGS)
+
+
+_MOTOR_KEYS = ('gear_ratios', 'motor_inertias', 'motor_damping')
+
+
+@functools.lru_cache(maxsize=256)
+def robot_with_motors(gear_ratios: tuple[float, float], motor_inertias: tuple[float, float],
+                      motor_damping: tuple[float, float]) -> TwoLinkArm:
+    """:data:`ROBOT` with these motors (ROBOT itself for its own)."""
+    if (gear_ratios, motor_inertias, motor_damping) == (
+            ROBOT.gear_ratios, ROBOT.motor_inertias, ROBOT.motor_damping):
+        return ROBOT
+    return replace(ROBOT, gear_ratios=gear_ratios, motor_inertias=motor_inertias,
+                   motor_damping=motor_damping)
+
+
+@functools.lru_cache(maxsize=256)
+def _friction(coulomb: tuple[float, float], static: tuple[float, float]) -> JointFriction:
+    return JointFriction(coulomb=np.array(coulomb), static=np.array(static))
 
 
 # ---------------------------------------------------------------------- spec
@@ -397,7 +536,17 @@ class Spec:
         """Its result columns (:func:`~arm_sim.sweep.columns.columns`): :data:`~arm_sim.
         sweep.columns.COLUMNS`, the ``control_model`` column if a scenario gives one, the
         margin columns if ``margins``."""
-        return columns(self.margins, self.uses_control_model)
+        return columns(self.margins, self.uses_control_model, self.uses_real_arm)
+
+    @property
+    def uses_real_arm(self) -> bool:
+        """Whether the spec gives a real-arm setting (:data:`REAL_SETTINGS`), in
+        ``scenario``, ``axes`` or a ``variant``."""
+        bundles = self.axes.get(VARIANT)
+        if bundles is not None and not isinstance(bundles, list):
+            bundles = bundles['arg']
+        return any(k in self.scenario or k in self.axes
+                   or any(k in b for b in bundles or ()) for k in REAL_SETTINGS)
 
     @property
     def uses_control_model(self) -> bool:
@@ -658,7 +807,9 @@ COLUMN_SETTING = {
     'start_x': 'start', 'start_y': 'start', 'goal_x': 'goal', 'goal_y': 'goal',
     'duration_requested': 'duration', 'effort_limit_1': 'effort_limits',
     'effort_limit_2': 'effort_limits',
-    **{f'{g}_{j}': g for g in ('kp', 'kd', 'ki', 'i_clamp') for j in (1, 2)}}
+    **{f'{g}_{j}': g for g in ('kp', 'kd', 'ki', 'i_clamp') for j in (1, 2)},
+    **{f'{c}_{j}': s for c, s in zip(REAL_PER_JOINT, REAL_SETTINGS) for j in (1, 2)},
+    **{n: n for n in ('sensing_delay', 'actuation_delay', 'noise_seed')}}
 
 
 def setting_values(spec: Spec, name: str) -> list | None:
@@ -724,6 +875,12 @@ def _plot_spec(value: object, spec: Spec) -> PlotSpec | None:
                             'are computed only when asked)')
         if c in MODEL_COLUMNS and not spec.uses_control_model:
             raise SpecError(f"plot: column {c!r} needs a control_model setting")
+        if c in REAL_COLUMNS and not spec.uses_real_arm:
+            raise SpecError(f'plot: column {c!r} needs a real-arm setting (one of '
+                            f"{', '.join(REAL_SETTINGS)})")
+        if c == 'pole_radius' and not (spec.uses_real_arm and spec.margins):
+            raise SpecError("plot: column 'pole_radius' needs 'margins: true' and a real-arm "
+                            'setting')
         _known('plot: column ', c, spec.columns)
     if not y:
         raise SpecError('plot: y must name at least one column')
