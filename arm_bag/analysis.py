@@ -36,6 +36,19 @@ Per segment:
   sum of tau_k . (q_k - q_(k-1)) over the actuated joints, each effort sample being the
   torque held over the period that ends there: a geared link's output beside its
   ``_motor`` entry is not counted).
+* friction (a robot record with a non-zero ``coulomb_friction``, N m per joint of the
+  model: a geared link's motor entry): ``friction_loss``, the energy the Coulomb friction
+  took, ``sum_i c_i sum_k |q_i,k - q_i,(k-1)|`` over the same periods as the energy (so
+  segments add up to the run), on the positions the figures use (true when the bag has
+  them); exact but for a period in which a joint reverses (undercounted).
+* pushes and faults (``simulator/events``, :attr:`arm_bag.reader.BagData.events`): each
+  push's response over its window, from its start to the next push's start (or the end of
+  the run): how far the tip (forward kinematics of the positions the figures use) and each
+  joint get from where they should be -- the reference at the same stamps when the bag has
+  one for every state of the window, else where they were at the push (the last state
+  at or before it) -- and when the tip is back (:data:`arm_bag.metrics.PUSH_METRICS`); each
+  fault's start and end. An end event is paired with the earliest open start of the same
+  label and kind.
 
 Times are header stamps (simulated time) relative to the segment's first joint state.
 
@@ -56,10 +69,23 @@ per-joint values are lists in ``joint_names`` order.
   - ``line_start``, ``line_end`` [x, y m] (straight_line only, else null)
   - every metric of :data:`arm_bag.metrics.METRICS`, by its name (unit, per joint or not,
     meaning: that table; null where undefined, e.g. settling time on a line)
+  - ``friction_loss`` J: only with friction (else absent; also ``run.friction_loss``)
+
+* ``pushes`` (only when the bag has push events): list of ``time`` s (since the first
+  joint state, as ``start``), ``time_ns`` (simulated, as in the bag), ``end`` s /
+  ``end_ns`` (a pulse's end; null: none recorded), ``kind``, ``label``, ``description``,
+  ``baseline`` ("reference" | "push_start": where the arm should be; null: no state in
+  the window), then every metric of :data:`arm_bag.metrics.PUSH_METRICS`
+  (``peak_deviation`` m and ``recovery_time`` s: null without end-effector metrics;
+  ``peak_joint_deviation`` [rad per joint])
+* ``faults`` (only when the bag has fault events): list of ``time``, ``time_ns``, ``end``,
+  ``end_ns`` (null: no end event: to the end of the run), ``kind``, ``label``,
+  ``description``
 """
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -68,7 +94,7 @@ from typing import Any
 import numpy as np
 
 from arm_bag import metrics
-from arm_bag.reader import BagData, JointStates, PathMsg, read_bag
+from arm_bag.reader import BagData, JointStates, PathMsg, SimEvent, read_bag
 from arm_dynamics.models import RobotModel, joint_count, robot_model
 from arm_dynamics.robot import ROBOT_DEFAULTS, resolve_robot
 
@@ -98,14 +124,17 @@ class Segment:
     series: dict = field(default_factory=dict, repr=False)
 
     def __getattr__(self, name: str) -> Any:
-        if name in metrics.METRIC_NAMES:
+        if name in metrics.METRIC_NAMES or name in metrics.SEGMENT_DISTURBANCE_METRICS:
             return self.__dict__.get('values', {}).get(name)
         raise AttributeError(f'{type(self).__name__} has no attribute {name!r}')
 
     def to_dict(self) -> dict:
-        """JSON-ready: the place fields, then every metric of the table (None: undefined)."""
+        """JSON-ready: the place fields, then every metric of the table (None: undefined),
+        then ``friction_loss`` if the segment has it."""
         out = {k: v for k, v in asdict(self).items() if k not in ('values', 'series')}
         out.update({name: self.values.get(name) for name in metrics.METRIC_NAMES})
+        out.update({name: self.values[name] for name in metrics.SEGMENT_DISTURBANCE_METRICS
+                    if name in self.values})
         return out
 
 
@@ -125,12 +154,19 @@ class Report:
     segments: list[Segment]
     #: The topic whose positions the figures use: 'true_joint_states' or 'joint_states'.
     state_source: str = 'joint_states'
+    #: Each push with its response (keys: the module docstring), by time.
+    pushes: list[dict] = field(default_factory=list)
+    #: Each fault, its start and end, by time.
+    faults: list[dict] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary (keys documented in the module docstring)."""
         out = {k: v for k, v in asdict(self).items() if k != 'segments'}
         if self.state_source == 'joint_states':
             del out['state_source']  # implied: reports of bags without true states unchanged
+        for key in ('pushes', 'faults'):
+            if not out[key]:
+                del out[key]  # a bag without events: its report as it was
         out['segments'] = [seg.to_dict() for seg in self.segments]
         return _clean(out)
 
@@ -179,6 +215,25 @@ def _robot(bag: BagData, warnings: list[str], joints: int) -> tuple[str, list, l
     limits = get('effort_limits', ROBOT_DEFAULTS['effort_limits'][:joints]
                  + [math.inf] * max(0, joints - 2))
     return source, lengths, limits
+
+
+def _coulomb(bag: BagData, names, warnings: list[str]) -> np.ndarray | None:
+    """The robot record's ``coulomb_friction`` [N m] of the model's joints (the
+    :func:`actuated` entries of ``names``: a geared link's motor), or None when it has
+    none, or only zeros, or an unusable value (warned)."""
+    value = (bag.robot or {}).get('coulomb_friction')
+    if value is None or value == []:
+        return None
+    driven = int(actuated(names).sum())
+    ok = (isinstance(value, list) and len(value) == driven
+          and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                  and math.isfinite(v) and v >= 0 for v in value))
+    if not ok:
+        warnings.append(f'arm_sim_robot coulomb_friction={value!r} unusable (needs {driven} '
+                        'values >= 0 N m): no friction_loss')
+        return None
+    c = np.array(value, dtype=np.float64)
+    return c if c.any() else None
 
 
 def _kinematics(bag: BagData, lengths: list, joints: int, warnings: list[str]
@@ -245,14 +300,15 @@ def analyze_data(bag: BagData) -> Report:
         warnings.append(f'{len(bag.trajectories) - len(trajs)} trajectories with other '
                         f'joint names or no points ignored')
     trajs = _valid_trajectories(trajs, warnings)
+    coulomb = _coulomb(bag, js.names, warnings)
     run = {'duration': float(t[-1]), 'samples': len(js)}
-    run.update(_torque(js.effort, js.position, limits, slice(None), js.names))
+    run.update(_torque(js.effort, js.position, limits, slice(None), js.names, coulomb))
     segments: list[Segment] = []
     if not trajs:
         warnings.append('no joint_trajectory messages: the whole run is one segment '
                         'without a set point')
         segments.append(_segment(0, None, None, slice(0, len(js)), t, js, ref, arm, limits,
-                                 bag, warnings))
+                                 bag, warnings, coulomb))
     else:
         bounds = _segment_starts(trajs, js, t_ns, warnings)
         bounds.append(len(js))
@@ -266,12 +322,14 @@ def analyze_data(bag: BagData) -> Report:
                 continue
             nxt = trajs[k + 1].log_time if k + 1 < len(trajs) else None
             segments.append(_segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag,
-                                     warnings))
+                                     warnings, coulomb))
+    pushes, faults = _disturbances(bag.events, js, t_ns, ref, arm, warnings)
     return Report(bag=bag.path, joint_names=list(js.names), robot_source=source,
                   link_lengths=lengths, effort_limits=limits,
                   message_counts={k: v[1] for k, v in sorted(bag.topics.items())},
                   truncated=bag.truncated, warnings=warnings, run=_clean(run),
-                  segments=segments, state_source=state_source)
+                  segments=segments, state_source=state_source,
+                  pushes=_clean(pushes), faults=_clean(faults))
 
 
 def _true_state(bag: BagData, js: JointStates, warnings: list[str]) -> JointStates | None:
@@ -393,17 +451,20 @@ def _json(values: dict) -> dict:
     return {k: _list(v) if isinstance(v, (np.ndarray, list)) else v for k, v in values.items()}
 
 
-def _torque(effort, position, limits, sl, names) -> dict:
+def _torque(effort, position, limits, sl, names, coulomb=None) -> dict:
     """Torque figures of the states ``sl``; the energy is the work of the torques the
     segment's states were answered with: the periods starting at its states, so the one
-    ending at the next segment's first state too (segments add up to the run)."""
+    ending at the next segment's first state too (segments add up to the run); the
+    friction loss (``coulomb`` (J_driven,) N m, or None: none) over the same periods."""
     driven = actuated(names)
     held = slice(sl.start, None if sl.stop is None else sl.stop + 1)
     if driven.all():  # no copies: the same values either way
         work = effort[held], position[held]
     else:
         work = effort[held][:, driven], position[held][:, driven]
-    return _json(metrics.segment_metrics(effort=effort[sl], effort_limits=limits, work=work))
+    friction = None if coulomb is None else (coulomb, work[1])
+    return _json(metrics.segment_metrics(effort=effort[sl], effort_limits=limits, work=work,
+                                         friction=friction))
 
 
 def _path_for(bag: BagData, log_time: int, nxt: int | None,
@@ -423,12 +484,13 @@ def _path_for(bag: BagData, log_time: int, nxt: int | None,
     return best
 
 
-def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
+def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings,
+             coulomb=None) -> Segment:
     q = js.position[sl]
     ts = t[sl]
     seg = Segment(index=k, mode=None, start=float(ts[0]), duration=float(ts[-1] - ts[0]),
                   samples=len(ts))
-    seg.values.update(_torque(js.effort, js.position, limits, sl, js.names))
+    seg.values.update(_torque(js.effort, js.position, limits, sl, js.names, coulomb))
     seg.series = {'t': ts - ts[0], 'q': q, 'effort': js.effort[sl]}
     set_point = None
     points = None
@@ -473,3 +535,73 @@ def _segment(k, tr, nxt, sl, t, js, ref, arm, limits, bag, warnings) -> Segment:
             warnings.append(f'segment {k}: no joint state has a matching reference')
     seg.values.update(_json(found))
     return seg
+
+
+# ---------------------------------------------------------------------- pushes and faults
+def _disturbances(events: list[SimEvent], js: JointStates, t_ns: np.ndarray, ref, arm,
+                  warnings: list[str]) -> tuple[list[dict], list[dict]]:
+    """The pushes (with their response) and faults of ``events`` (by time): each start,
+    its end paired with the earliest open start of the same label and kind."""
+    if not events:
+        return [], []
+    origin = int(js.stamp[0])
+    pushes: list[dict] = []
+    faults: list[dict] = []
+    open_starts: dict[tuple, list[dict]] = {}
+    for e in events:
+        key = (e.is_push, e.label, e.kind)
+        when = {'time': (e.time_ns - origin) * 1e-9, 'time_ns': e.time_ns}
+        if e.edge == 'start':
+            entry = {**when, 'end': None, 'end_ns': None, 'kind': e.kind, 'label': e.label,
+                     'description': e.description}
+            (pushes if e.is_push else faults).append(entry)
+            open_starts.setdefault(key, []).append(entry)
+        elif open_starts.get(key):
+            start = open_starts[key].pop(0)
+            start['end'], start['end_ns'] = when['time'], when['time_ns']
+        else:
+            warnings.append(f"{'push' if e.is_push else 'fault'} {e.label} ({e.kind}) ends "
+                            f"at {when['time']:.3f} s without a start in the bag")
+    if pushes:
+        on_stamps = t_ns is js.stamp
+        if not on_stamps:
+            warnings.append('push responses need increasing header stamps: not computed')
+        starts = sorted({p['time_ns'] for p in pushes})
+        for p in pushes:
+            k = bisect.bisect_right(starts, p['time_ns'])  # the next push starts there
+            figures = _push_response(js, ref, arm, p['time_ns'],
+                                     starts[k] if k < len(starts) else None,
+                                     origin) if on_stamps else {}
+            p['baseline'] = figures.pop('baseline', None)
+            p.update({m.name: figures.get(m.name) for m in metrics.PUSH_METRICS})
+    return pushes, faults
+
+
+def _push_response(js: JointStates, ref, arm, start_ns: int, next_ns: int | None,
+                   origin: int) -> dict:
+    """One push's figures (:data:`arm_bag.metrics.PUSH_METRICS`, ``baseline``) over the
+    states stamped from ``start_ns`` to before ``next_ns`` (None: to the end)."""
+    st = js.stamp
+    lo = int(np.searchsorted(st, start_ns, 'left'))
+    hi = len(st) if next_ns is None else int(np.searchsorted(st, next_ns, 'left'))
+    if hi <= lo:
+        return {}
+    q = js.position[lo:hi]
+    if ref is not None and metrics.finite_rows(ref[lo:hi]).all():
+        desired, baseline = ref[lo:hi], 'reference'
+    else:  # where the arm was at the push: the last state at or before it
+        k0 = max(int(np.searchsorted(st, start_ns, 'right')) - 1, lo)
+        desired, baseline = np.broadcast_to(js.position[k0], q.shape), 'push_start'
+    ok = metrics.finite_rows(q, desired)
+    if not ok.any():
+        return {}
+    q, desired = q[ok], desired[ok]
+    out: dict[str, Any] = {'baseline': baseline,
+                           'peak_joint_deviation': np.abs(q - desired).max(axis=0)}
+    if arm is not None:
+        gap = arm.forward_kinematics(q) - arm.forward_kinematics(desired)
+        t = (st[lo:hi][ok] - origin) * 1e-9
+        peak, recovery = metrics.push_response(t, np.hypot(gap[:, 0], gap[:, 1]),
+                                               (start_ns - origin) * 1e-9)
+        out.update(peak_deviation=peak, recovery_time=recovery)
+    return _json(out)

@@ -9,7 +9,8 @@ Two paths:
   (all bytes other than the stamp and the float64 values must equal the template's);
   those that differ are decoded one by one.
 * Per-message decoders (:func:`decode_joint_state`, :func:`decode_joint_trajectory`,
-  :func:`decode_path`, :func:`decode_pose_stamped`) for everything else.
+  :func:`decode_path`, :func:`decode_pose_stamped`, :func:`decode_diagnostic_status`) for
+  everything else.
 
 CDR (XCDR1, little endian, as ROS 2 writes it): a 4-byte encapsulation header
 ``00 01 00 00``, then the fields; primitives are aligned to their size relative to the
@@ -59,6 +60,13 @@ class Cursor:
         if self.pos + n > self.end:
             raise CdrError(f'message truncated: needs {n} bytes at offset {self.pos}, '
                            f'has {self.end - self.pos}')
+
+    def byte(self) -> int:
+        """A ``byte``/``uint8`` (no alignment)."""
+        self._need(1)
+        v = self.data[self.pos]
+        self.pos += 1
+        return int(v)
 
     def u32(self) -> int:
         self.align(4)
@@ -316,6 +324,35 @@ def decode_pose_stamped(data: bytes | memoryview) -> tuple[int, str, float, floa
     return stamp, frame, x, y
 
 
+@dataclass(frozen=True)
+class DiagnosticStatusMsg:
+    """A decoded diagnostic_msgs/DiagnosticStatus: ``level`` (0 OK, 1 WARN, 2 ERROR, 3
+    STALE), ``name``, ``message``, ``hardware_id`` and ``values``, the (key, value) string
+    pairs in message order."""
+
+    level: int
+    name: str
+    message: str
+    hardware_id: str
+    values: tuple[tuple[str, str], ...] = ()
+
+    def value(self, key: str, default: str | None = None) -> str | None:
+        """The value of the first pair with ``key`` (``default`` if none)."""
+        return next((v for k, v in self.values if k == key), default)
+
+
+def decode_diagnostic_status(data: bytes | memoryview) -> DiagnosticStatusMsg:
+    """diagnostic_msgs/DiagnosticStatus: byte level, string name, string message, string
+    hardware_id, KeyValue[] values (KeyValue: string key, string value)."""
+    c = Cursor(data)
+    level = c.byte()
+    name, message, hardware_id = c.string(), c.string(), c.string()
+    values = tuple((c.string(), c.string()) for _ in range(c.u32()))
+    if c.end - c.pos > 7:
+        raise CdrError(f'{c.end - c.pos} bytes after the end of a DiagnosticStatus')
+    return DiagnosticStatusMsg(level, name, message, hardware_id, values)
+
+
 # ---------------------------------------------------------------------- encoding
 class Writer:
     """Builds little-endian CDR (with the 4-byte header), for tests and benchmarks."""
@@ -325,6 +362,9 @@ class Writer:
 
     def align(self, n: int) -> None:
         self.buf += b'\x00' * ((-(len(self.buf) - 4)) % n)
+
+    def byte(self, v: int) -> None:
+        self.buf += bytes((int(v) & 0xFF,))
 
     def u32(self, v: int) -> None:
         self.align(4)
@@ -397,3 +437,19 @@ def encode_path(stamp_ns: int, xy, frame_id: str = 'base_link',
         w.float64s([x, y, 0.0, 0.0, 0.0, 0.0, 1.0], with_count=False)
     return bytes(w.buf)
 
+
+
+def encode_diagnostic_status(level: int, name: str, message: str, hardware_id: str = '',
+                             values=()) -> bytes:
+    """diagnostic_msgs/DiagnosticStatus as CDR bytes; ``values``: (key, value) string pairs
+    or a mapping."""
+    pairs = list(values.items()) if hasattr(values, 'items') else list(values)
+    w = Writer()
+    w.byte(level)
+    for text in (name, message, hardware_id):
+        w.string(text)
+    w.u32(len(pairs))
+    for key, value in pairs:
+        w.string(str(key))
+        w.string(str(value))
+    return bytes(w.buf)

@@ -34,7 +34,9 @@ def add_analyze_parser(subparsers) -> argparse.ArgumentParser:
         'analyze', help='metrics of recorded runs (bag directories or .mcap files)',
         description='Read rosbag2/MCAP bags recorded from arm_sim and print per-segment '
         'metrics (tracking error, settling time, overshoot, straight-line deviation, '
-        'torque, energy); several bags are compared side by side; with --frf the frequency '
+        'torque, energy; friction loss, and each push\'s peak deviation and recovery time '
+        'and each fault, when the bag has them); several bags are compared side by side; '
+        'with --frf the frequency '
         'response of a chirp run against the linearised loop. Exit codes: 0 ok, '
         '2 usage, 3 nothing analysable, 4 not a bag / unreadable.')
     p.add_argument('bags', nargs='+', metavar='BAG', help='bag directory or .mcap file')
@@ -182,9 +184,12 @@ def run_analyze(args: argparse.Namespace) -> int:
             docs = [r.to_dict() for r in reports]
             print(json.dumps(docs[0] if len(docs) == 1 else docs, indent=2))
         else:
-            from arm_bag.report import format_table
+            from arm_bag.report import format_events, format_table
 
             print(format_table(reports))
+            events = format_events(reports)  # pushes and faults: only bags that have them
+            if events:
+                print(f'\n{events}')
         if args.plot:
             from arm_bag.plot import plot_report
 

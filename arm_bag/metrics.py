@@ -8,6 +8,11 @@ meaning. :func:`segment_metrics` computes them for one segment, for ``analyze`` 
 the sweeps alike. To add a metric: add a :class:`Metric` row and its computation in
 :func:`segment_metrics` -- this file only (docs/architecture.md, "Add a metric").
 
+:data:`DISTURBANCE_METRICS` is the same for the figures of a real arm that only some bags
+have: the energy Coulomb friction took (a robot record with ``coulomb_friction``) and the
+response to each push (a bag with ``simulator/events``); they are not sweep columns, and
+a report leaves them out where they do not apply (so reports of other bags are unchanged).
+
 Shapes: ``N`` samples, ``J`` joints. Times in s, angles in rad, torques in N m,
 positions in m. Errors are actual minus desired.
 """
@@ -24,7 +29,9 @@ import numpy as np
 class Metric:
     """One per-segment metric: ``name``, report ``label``, ``unit``, per joint or not, the
     report's number ``fmt`` (a format spec, or ``pct`` for a fraction shown in percent),
-    when it is defined (``all``, ``regulation``, ``straight_line``) and its ``meaning``."""
+    when it is defined (``all``, ``regulation``, ``straight_line``; in
+    :data:`DISTURBANCE_METRICS`: ``friction``, a robot with a non-zero
+    ``coulomb_friction``, or ``push``, each push of the run) and its ``meaning``."""
 
     name: str
     label: str
@@ -72,13 +79,57 @@ METRIC_NAMES = tuple(m.name for m in METRICS)
 #: The per-joint ones.
 PER_JOINT_METRICS = tuple(m.name for m in METRICS if m.per_joint)
 
+#: After a push the tip counts as back once within max(floor [m], fraction x its peak
+#: deviation) of where it should be (:func:`push_response`).
+RECOVERY_BAND_FLOOR = 1e-3
+RECOVERY_BAND_FRACTION = 0.05
+
+#: The figures of a real arm's friction and of its response to pushes, in report order:
+#: ``friction_loss`` per segment (and ``run.friction_loss``) when the robot record has a
+#: non-zero ``coulomb_friction``; the others per push (``Report.pushes``).
+DISTURBANCE_METRICS: tuple[Metric, ...] = (
+    Metric('friction_loss', 'friction loss', 'J', False, '.4g', 'friction',
+           'energy the Coulomb friction took: sum over the joints of coulomb_friction_i '
+           'times the path length sum_k |q_i,k - q_i,(k-1)| of the (true) positions, per '
+           'segment and for the run; exact except in a sample period in which a joint '
+           'reverses, which it then undercounts (Coulomb work is c |dq| while the joint '
+           'slips one way and zero while it sticks, and such a period counts only its net '
+           '|dq|)'),
+    Metric('peak_deviation', 'peak deviation', 'm', False, '.3g', 'push',
+           "largest distance of the tip from where it should be (the reference's tip at "
+           'the same stamp, else the tip at the push) from the push until the next push or '
+           'the end of the run'),
+    Metric('recovery_time', 'recovery time', 's', False, '.3f', 'push',
+           'from the push until the tip is back within max('
+           f'{RECOVERY_BAND_FLOOR * 1e3:g} mm, {RECOVERY_BAND_FRACTION * 100:g}% of '
+           'peak_deviation) of where it should be and stays there to the end of the '
+           'window (none if it is outside at its end)'),
+    Metric('peak_joint_deviation', 'peak joint deviation', 'rad', True, '.3g', 'push',
+           'largest |joint position minus where it should be| over the same window'),
+)
+#: Their names, in order.
+DISTURBANCE_METRIC_NAMES = tuple(m.name for m in DISTURBANCE_METRICS)
+#: The ones a segment (and the run) has: ``friction_loss``.
+SEGMENT_DISTURBANCE_METRICS = tuple(m.name for m in DISTURBANCE_METRICS if m.when != 'push')
+#: The ones each push has.
+PUSH_METRICS = tuple(m for m in DISTURBANCE_METRICS if m.when == 'push')
+
+
+def _markdown(table: tuple[Metric, ...]) -> str:
+    rows = ['| metric | unit | per joint | defined for | meaning |', '|---|---|---|---|---|']
+    rows += [f"| `{m.name}` | {m.unit} | {'yes' if m.per_joint else ''} | {m.when} | "
+             f'{m.meaning} |' for m in table]
+    return '\n'.join(rows) + '\n'
+
 
 def metrics_markdown() -> str:
     """The docs' table of the metrics (docs/bags.md holds it verbatim; a test checks)."""
-    rows = ['| metric | unit | per joint | defined for | meaning |', '|---|---|---|---|---|']
-    rows += [f"| `{m.name}` | {m.unit} | {'yes' if m.per_joint else ''} | {m.when} | "
-             f'{m.meaning} |' for m in METRICS]
-    return '\n'.join(rows) + '\n'
+    return _markdown(METRICS)
+
+
+def disturbance_metrics_markdown() -> str:
+    """The same table of :data:`DISTURBANCE_METRICS`."""
+    return _markdown(DISTURBANCE_METRICS)
 
 
 def finite_rows(*arrays: np.ndarray) -> np.ndarray:
@@ -92,9 +143,10 @@ def finite_rows(*arrays: np.ndarray) -> np.ndarray:
 
 
 def segment_metrics(t=None, q=None, *, desired=None, set_point=None, line=None, xy=None,
-                    effort=None, effort_limits=None, work=None,
+                    effort=None, effort_limits=None, work=None, friction=None,
                     series: dict | None = None) -> dict[str, Any]:
-    """Every metric of :data:`METRICS` the inputs define, by name, for one segment.
+    """Every metric of :data:`METRICS` the inputs define, by name, for one segment (and
+    ``friction_loss`` of :data:`DISTURBANCE_METRICS` with ``friction``).
 
     Parameters
     ----------
@@ -109,6 +161,8 @@ def segment_metrics(t=None, q=None, *, desired=None, set_point=None, line=None, 
         saturated fraction).
     work : ((K, J) N m, (K, J) rad) or None -- the held torques and the positions over
         the periods they were held, for the energy (:func:`energy_delivered`).
+    friction : ((J,) N m, (K, J) rad) or None -- the joints' Coulomb friction and their
+        positions over the same periods, for ``friction_loss`` (:func:`friction_loss`).
     series : a dict to receive the arrays behind the figures, for plots (``deviation``:
         (M,) m), or None.
 
@@ -151,6 +205,8 @@ def segment_metrics(t=None, q=None, *, desired=None, set_point=None, line=None, 
                    saturated_fraction=stats['saturated_fraction'])
     if work is not None:
         out['energy'] = energy_delivered(*work)
+    if friction is not None:
+        out['friction_loss'] = friction_loss(*friction)
     return out
 
 
@@ -356,3 +412,63 @@ def energy_delivered(effort, position) -> float:
     work = np.sum(tau[1:] * np.diff(q, axis=0), axis=1)
     ok = np.isfinite(work)
     return float(np.sum(work if ok.all() else work[ok]))
+
+
+def friction_loss(coulomb, position) -> float:
+    """Energy [J] Coulomb friction took: ``sum_j c_j sum_k |q_kj - q_(k-1)j|``, k = 1 .. N-1.
+
+    ``coulomb`` (J,) N m, the joints' Coulomb (sliding) friction ``c_j >= 0``; ``position``
+    (N, J) rad, sampled. A slipping joint loses ``c_j |dq|`` and a stuck one nothing, so
+    this is exact unless a joint reverses within a sample period: that period counts only
+    its net displacement, an undercount (of ``2 c_j`` times the shorter way, for one
+    reversal). Periods with a non-finite position are left out (as in
+    :func:`energy_delivered`)."""
+    q = _as2d('position', position)
+    c = np.asarray(coulomb, np.float64).reshape(-1)
+    if c.shape != (q.shape[1],):
+        raise ValueError(f'coulomb must have {q.shape[1]} values, got {c.shape}')
+    if len(q) < 2:
+        return 0.0
+    step = np.abs(np.diff(q, axis=0))
+    ok = finite_rows(step)
+    path = step.sum(axis=0) if ok.all() else step[ok].sum(axis=0)  # (J,) rad
+    return float(np.sum(c * path))
+
+
+def recovery_band(peak: float) -> float:
+    """The band [m] a tip must be back within after a push of ``peak`` deviation [m]:
+    max(:data:`RECOVERY_BAND_FLOOR`, :data:`RECOVERY_BAND_FRACTION` x peak)."""
+    return max(RECOVERY_BAND_FLOOR, RECOVERY_BAND_FRACTION * peak)
+
+
+def push_response(t, distance, t_push: float) -> tuple[float | None, float | None]:
+    """Peak deviation [m] and recovery time [s] of one push.
+
+    Parameters
+    ----------
+    t : (N,) s, the samples from the push on (to the next push or the end of the run).
+    distance : (N,) m, how far the tip is from where it should be at each.
+    t_push : s, when the push started (on the clock of ``t``).
+
+    Returns
+    -------
+    (peak, recovery): ``peak`` the largest distance; ``recovery`` the time from
+    ``t_push`` to the first sample from which the distance stays within
+    :func:`recovery_band` (peak) to the last one (0.0 if it never left it, None if it is
+    outside at the last sample); (None, None) without samples.
+    """
+    t = np.asarray(t, np.float64)
+    d = np.asarray(distance, np.float64)
+    if t.shape != d.shape or t.ndim != 1:
+        raise ValueError(f't and distance must be equal-length 1-D arrays, got {t.shape} '
+                         f'and {d.shape}')
+    if len(d) == 0:
+        return None, None
+    peak = float(d.max())
+    outside = np.flatnonzero(d > recovery_band(peak))
+    if len(outside) == 0:
+        return peak, 0.0
+    last = int(outside[-1])
+    if last == len(d) - 1:
+        return peak, None
+    return peak, float(t[last + 1] - t_push)

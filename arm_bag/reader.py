@@ -5,9 +5,10 @@ No ROS install is needed. The MCAP file is streamed: memory-mapped (files of at 
 chunk is decompressed (zstd, lz4), its message offsets come from the message-index records
 that follow it (messages are located with numpy, not one Python object per message), its
 JointState messages are decoded in bulk into arrays at once
-(:func:`arm_bag.cdr.decode_joint_states_bulk`), the few trajectory, path and goal messages
-copied, and then its decompressed bytes are dropped and its pages of the file released, so
-the peak memory is the decoded arrays plus about one chunk, not the file.
+(:func:`arm_bag.cdr.decode_joint_states_bulk`), the few trajectory, path, goal and
+simulator event messages copied, and then its decompressed bytes are dropped and its pages
+of the file released, so the peak memory is the decoded arrays plus about one chunk, not
+the file.
 
 Integrity: everything the format lets a reader check is checked (magic at both ends,
 record lengths, chunk sizes, decompression, chunk CRCs, the data-section and summary CRCs
@@ -63,7 +64,9 @@ from arm_bag.bagfile import (
 )
 from arm_bag.cdr import (
     CdrError,
+    DiagnosticStatusMsg,
     JointTrajectoryMsg,
+    decode_diagnostic_status,
     decode_joint_states_bulk,
     decode_joint_trajectory,
     decode_path,
@@ -74,6 +77,7 @@ JOINT_STATE = 'sensor_msgs/msg/JointState'
 TRAJECTORY = 'trajectory_msgs/msg/JointTrajectory'
 PATH = 'nav_msgs/msg/Path'
 POSE_STAMPED = 'geometry_msgs/msg/PoseStamped'
+DIAGNOSTIC_STATUS = 'diagnostic_msgs/msg/DiagnosticStatus'
 ROBOT_RECORD = 'arm_sim_robot'
 _U16, _U32, _U64 = struct.Struct('<H'), struct.Struct('<I'), struct.Struct('<Q')
 #: Files of at least this many bytes are memory-mapped and streamed (pages released as
@@ -131,6 +135,52 @@ class GoalMsg:
     y: float
 
 
+#: The push kinds of :mod:`arm_dynamics.disturbance` (every other event kind is a fault).
+PUSH_KINDS = ('tip_force', 'joint_torque')
+#: The edges an event can be.
+EDGES = ('start', 'end')
+
+
+@dataclass(frozen=True)
+class SimEvent:
+    """A push or fault starting or ending (``simulator/events``, one DiagnosticStatus per
+    edge, :class:`arm_dynamics.disturbance.Event`): ``time_ns`` the simulated time [ns]
+    it happens at (its ``time_ns`` value), ``name`` ('simulator: push' or 'simulator:
+    fault'), ``kind`` (e.g. 'tip_force', 'brake'), ``edge`` ('start' or 'end'), ``label``
+    (its scenario entry, 'pushes[0]', 'faults[2]', or 'live'), ``description`` (the
+    status message, one line) and ``level`` (0 OK: a push, 1 WARN: a fault)."""
+
+    time_ns: int
+    name: str
+    kind: str
+    edge: str
+    label: str
+    description: str
+    level: int
+
+    @property
+    def is_push(self) -> bool:
+        """A push (else a fault): by its name, or by its kind for another name."""
+        if self.name.endswith((': push', ': fault')):
+            return self.name.endswith(': push')
+        return self.kind in PUSH_KINDS
+
+
+def sim_event(msg: DiagnosticStatusMsg) -> SimEvent:
+    """The :class:`SimEvent` a ``simulator/events`` status holds; CdrError if it is not
+    one (no integer ``time_ns`` value, or an ``edge`` other than start/end)."""
+    text = msg.value('time_ns')
+    try:
+        time_ns = int(text or '')
+    except ValueError:
+        raise CdrError(f'simulator event without an integer time_ns ({text!r})') from None
+    edge = msg.value('edge', '') or ''
+    if edge not in EDGES:
+        raise CdrError(f"simulator event edge {edge!r} is not 'start' or 'end'")
+    return SimEvent(time_ns, msg.name, msg.value('kind', '') or '', edge,
+                    msg.value('label', '') or '', msg.message, msg.level)
+
+
 @dataclass
 class BagData:
     """What :func:`read_bag` found. ``topics`` maps topic -> (type, message count)."""
@@ -145,6 +195,9 @@ class BagData:
     trajectories: list[TrajectoryMsg] = field(default_factory=list)
     paths: list[PathMsg] = field(default_factory=list)
     goals: list[GoalMsg] = field(default_factory=list)
+    #: ``simulator/events``: the pushes' and faults' starts and ends, by simulated time
+    #: (at one time in the order received); empty when the bag has none.
+    events: list[SimEvent] = field(default_factory=list)
     robot: dict | None = None
     warnings: list[str] = field(default_factory=list)
     truncated: bool = False
@@ -690,6 +743,13 @@ def _positions_only(topic: str) -> bool:
     """Lean reading keeps only the positions of these JointState topics."""
     return _is_topic(topic, REFERENCE_SUFFIX) or _is_topic(topic, TRUE_STATE_SUFFIX)
 _COPIED = (TRAJECTORY, PATH, POSE_STAMPED)  # message types kept as bytes until the end
+EVENTS_SUFFIX = 'simulator/events'
+
+
+def _copied(type_name: str, topic: str) -> bool:
+    """Are the messages of ``topic`` kept as bytes until the end (then decoded)?"""
+    return type_name in _COPIED or (type_name == DIAGNOSTIC_STATUS
+                                    and _is_topic(topic, EVENTS_SUFFIX))
 
 
 @dataclass
@@ -817,7 +877,7 @@ class _Collector:
                 continue
             elif c.schema == JOINT_STATE:
                 self._sink(ch, c, scan.hints.get(ch, 0)).add(buf, offs)
-            elif c.schema in _COPIED:
+            elif _copied(c.schema, c.topic):
                 self.parts.setdefault(ch, []).append(_copy_records(buf, offs))
 
     def _sink(self, ch: int, c: _Channel, capacity: int) -> _States:
@@ -844,7 +904,8 @@ def read_bag(path: str | Path, lean: bool = False) -> BagData:
     and foreign bags with a ``joint_states`` topic work: ``joint_states`` and
     ``arm_controller/reference`` (JointState), ``simulator/true_joint_states``
     (JointState, :attr:`BagData.true_joint_states`), ``joint_trajectory``
-    (JointTrajectory), ``planner/path`` (Path), ``goal_pose`` (PoseStamped).
+    (JointTrajectory), ``planner/path`` (Path), ``goal_pose`` (PoseStamped),
+    ``simulator/events`` (DiagnosticStatus, :attr:`BagData.events`).
 
     ``lean``: of the reference and true-state topics keep only what
     :mod:`arm_bag.analysis` uses (stamps, receive times, positions); their ``velocity``
@@ -939,7 +1000,7 @@ def _read_sqlite(path: str | Path, files: list[Path], meta: dict | None,
                 sink = _States(lean and _positions_only(t.name), n)
                 sink.add(t.buf, t.offs)
                 per_topic.setdefault(t.name, []).append(sink)
-            elif t.type_name in _COPIED:
+            elif _copied(t.type_name, t.name):
                 per_topic.setdefault(t.name, []).append(_Raw(t.buf, t.offs))
     if meta is not None:
         expected = meta.get('message_count')
@@ -1125,7 +1186,9 @@ def _decode_topics(bag: BagData, per_topic: dict[str, list], lean: bool = False)
                 ('planner/path', PATH, decode_path,
                  lambda t, m: bag.paths.append(PathMsg(t, m[1], m[2], m[0], m[3]))),
                 ('goal_pose', POSE_STAMPED, decode_pose_stamped,
-                 lambda t, m: bag.goals.append(GoalMsg(t, m[1], m[2], m[3]))))
+                 lambda t, m: bag.goals.append(GoalMsg(t, m[1], m[2], m[3]))),
+                (EVENTS_SUFFIX, DIAGNOSTIC_STATUS, decode_diagnostic_status,
+                 lambda t, m: bag.events.append(sim_event(m))))
     for suffix, type_name, decode, add in decoders:
         topic = _pick(bag, type_name, suffix)
         if not topic or topic not in per_topic:
@@ -1137,5 +1200,7 @@ def _decode_topics(bag: BagData, per_topic: dict[str, list], lean: bool = False)
             except CdrError:
                 bad += 1
         if bad:
-            bag.warnings.append(f'{topic}: {bad} messages could not be decoded as '
-                                f'{type_name}')
+            what = ('simulator events (DiagnosticStatus with an integer time_ns and an '
+                    'edge)' if suffix == EVENTS_SUFFIX else type_name)
+            bag.warnings.append(f'{topic}: {bad} messages could not be decoded as {what}')
+    bag.events.sort(key=lambda e: e.time_ns)  # stable: at one time, as received

@@ -4,8 +4,13 @@
 KNOWN_TOPICS = {
     'joint_states': 'sensor_msgs/msg/JointState',
     # The true state beside the measured joint_states (published only with sensor or
-    # actuator effects on: the simulator's position_noise, ..., actuation_delay).
+    # actuator effects on: the simulator's position_noise, ..., actuation_delay, or a
+    # disturbance scenario: its effort is then the applied torque, motor plus push).
     'simulator/true_joint_states': 'sensor_msgs/msg/JointState',
+    # Pushes and faults (arm_dynamics.disturbance): one status per start or end of one
+    # (values time_ns, kind, edge, label), and the live pushes sent to the simulator.
+    'simulator/events': 'diagnostic_msgs/msg/DiagnosticStatus',
+    'simulator/push': 'geometry_msgs/msg/WrenchStamped',
     'effort_controller/commands': 'std_msgs/msg/Float64MultiArray',
     'arm_controller/reference': 'sensor_msgs/msg/JointState',
     'arm_controller/joint_trajectory': 'trajectory_msgs/msg/JointTrajectory',
