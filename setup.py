@@ -23,6 +23,7 @@ setup(
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
         ('share/' + PACKAGE + '/config/sweeps', glob('config/sweeps/*.yaml')),
         ('share/' + PACKAGE + '/config/disturbances', glob('config/disturbances/*.yaml')),
+        ('share/' + PACKAGE + '/config/checks', glob('config/checks/*.yaml')),
         ('share/' + PACKAGE + '/config/rviz', glob('config/rviz/*.rviz')),
         ('share/' + PACKAGE + '/config/foxglove', glob('config/foxglove/*.json')),
         ('share/' + PACKAGE + '/config/plotjuggler', glob('config/plotjuggler/*.xml')),
@@ -57,7 +58,10 @@ setup(
             'composed = arm_sim.composed:main',
             'live = arm_sim.live_node:main',
             'visualizer = arm_sim.visualizer_node:main',
+            'check_reference = arm_sim.check.reference_node:main',
             'arm-sim = arm_sim.cli:main',
         ],
+        # arm_sim.testing: the arm_check fixture (opt-in; docs/check.md)
+        'pytest11': ['arm_sim = arm_sim.testing'],
     },
 )

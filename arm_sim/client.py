@@ -105,6 +105,11 @@ class SuiteClient:
         if len(self.states) > 20000:
             del self.states[:10000]
 
+    def follow_reference(self, topic: str) -> None:
+        """Also take :attr:`reference_time` from ``topic`` (JointState; e.g. ``arm-sim
+        check``'s own reference stream)."""
+        self.node.create_subscription(JointState, topic, self._on_reference, 1000)
+
     def _on_reference(self, msg: JointState) -> None:
         self.reference_time = max(self.reference_time, stamp_of(msg))
 

@@ -33,6 +33,8 @@ MODULES = {
     'composed': 'arm_sim.composed',  # simulator + controller in one process
     'live': 'arm_sim.live_node',  # the Foxglove WebSocket bridge (--foxglove)
     'visualizer': 'arm_sim.visualizer_node',  # markers and robot_description
+    # arm-sim check: the reference stream for the user's controller (check/reference)
+    'check_reference': 'arm_sim.check.reference_node',
 }
 
 

@@ -70,6 +70,7 @@ ROSDISTRO_KEYS = {
 OPTIONAL = {
     'distributed': "arm-sim sweep --dask only (setup.py extra 'dask')",
     'foxglove': "arm-sim bringup/demo --foxglove only (setup.py extra 'foxglove')",
+    'pytest': 'arm_sim.testing only: the pytest plugin, which pytest itself loads',
 }
 
 #: exec_depends no module imports, with the reason they are there anyway.

@@ -1,0 +1,342 @@
+"""Run a check suite around a user's controller: every scenario on a fresh suite.
+
+Each scenario starts its own recorder, visualizer, simulator (lockstep, paused at
+``start_hold``, the scenario's start pose, sensors and pushes), planner and reference node
+(:mod:`arm_sim.check.reference_node`) on the run's ROS domain, then the user's controller
+(``command``; or, without one, waits for a controller started by hand), sends the goals at
+exact simulated times, runs to the end, stops everything and grades the bag. A fresh
+simulator per scenario is the reset: the plant, the planner and the user's controller all
+start from scratch, so a crash, a runaway or a hang in one scenario cannot leak into the
+next, and the sensors and pushes (read-only simulator parameters) differ per scenario.
+
+A controller that does not do its job never hangs the check: no command, a command with
+NaN or the wrong number of joints, a controller that exits, a runaway (the simulator's
+``runaway``/``diverged`` fault on /diagnostics) or a scenario over its wall-clock
+``budget`` ends the scenario at once with that reason.
+
+Built from the demo's pieces (:class:`arm_sim.demo.Demo`: starting the nodes behind the
+recorder's gate, the recorder drain, the pause and refusal checks) and
+:class:`arm_sim.client.SuiteClient`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+import signal
+import subprocess
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from arm_bag.topics import DEFAULT_TOPICS
+from arm_common.process import PARENT_ENV
+from arm_sim.check.grade import ScenarioResult, grade
+from arm_sim.check.suite import PERIOD, Scenario, Suite
+from arm_sim.client import SuiteClient, SuiteError, goal_refusal
+from arm_sim.demo import Demo
+from arm_sim.launcher import NodeProcess, node_env
+
+REFERENCE_TOPIC = 'check/reference'
+REFERENCE_REMAPS = {'__node': 'check_reference',
+                    'arm_controller/reference': REFERENCE_TOPIC,
+                    'effort_controller/commands': 'check/unused'}
+START_WAIT = 60.0  # s (wall): the suite's own nodes to start and match
+FAULTS = ('runaway', 'diverged')
+
+
+class ScenarioFailed(Exception):
+    """The controller failed the scenario before it could be graded; the reason."""
+
+
+class ControllerProcess:
+    """The user's controller: any command, in a session of its own (a ``ros2 run`` or a
+    shell script and its children are stopped together), with the run's ROS domain and
+    localhost-only discovery in its environment, its output in ``log_path``."""
+
+    name = 'your controller'
+
+    def __init__(self, command: Sequence[str], domain_id: int, log_path: Path) -> None:
+        self.log_path = log_path
+        env = node_env(domain_id)
+        env[PARENT_ENV] = str(os.getpid())  # honoured by arm_sim nodes (harmless otherwise)
+        with open(log_path, 'wb') as out:
+            self.proc = subprocess.Popen(list(command), env=env, stdout=out,
+                                         stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                         start_new_session=True)
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def stop(self, timeout: float = 5.0) -> int:
+        """SIGINT to its process group, then SIGKILL after ``timeout`` s."""
+        for sig in (signal.SIGINT, signal.SIGKILL):
+            try:
+                os.killpg(self.proc.pid, sig)
+            except ProcessLookupError:
+                break
+            try:
+                self.proc.wait(timeout)
+                break
+            except subprocess.TimeoutExpired:
+                continue
+        if self.proc.poll() is None:
+            self.proc.wait()
+        return self.proc.returncode
+
+    def output(self) -> str:
+        return self.log_path.read_text(errors='replace')
+
+
+def tail(text: str, chars: int = 300) -> str:
+    """The end of a log, on one line."""
+    return ' | '.join(line.strip() for line in text.strip()[-chars:].splitlines()
+                      if line.strip()) or '(no output)'
+
+
+class ScenarioRun(Demo):
+    """One scenario of a suite, in ``out`` (``bag/``, ``logs/``)."""
+
+    def __init__(self, scenario: Scenario, out: Path, domain_id: int,
+                 command: Sequence[str] | None, echo: Callable[[str], None] = print) -> None:
+        super().__init__(out, domain_id, fast=0.8, slow=3.0, echo=echo)
+        self.scenario = scenario
+        self.command = list(command) if command else None
+        if scenario.start is not None:
+            self.q0 = np.array(scenario.start, dtype=float)
+        elif scenario.start_tip is not None:
+            self.q0 = self.arm.inverse_kinematics(np.array(scenario.start_tip), 'down')
+        self.controller: ControllerProcess | None = None
+        self.client: SuiteClient | None = None
+        self.deadline = math.inf  # wall (monotonic) end of the scenario's budget
+        self.commands = 0
+        self.bad_command: str | None = None
+        self.t_end = math.nan
+
+    # ------------------------------------------------------------------ evidence
+    def _on_command(self, msg) -> None:
+        self.commands += 1
+        if self.bad_command is not None:
+            return
+        data = list(msg.data)
+        t = max(self.client.sim_time, 0.0) if self.client else 0.0
+        n = len(self.q0)
+        if len(data) != n:
+            self.bad_command = (f'command {self.commands} (at simulated t = {t:.2f} s) has '
+                                f'{len(data)} values for the {n} joints of joint_states')
+        elif not all(math.isfinite(v) for v in data):
+            self.bad_command = (f'command {self.commands} (at simulated t = {t:.2f} s) is '
+                                f'not finite: {data}')
+
+    def _watch(self) -> None:
+        """The alive check of every wait: a suite node that exited is the harness's
+        problem (SuiteError); the controller's failures end the scenario (ScenarioFailed)."""
+        Demo._alive(self)
+        c = self.client
+        assert c is not None
+        t = max(c.sim_time, 0.0)
+        if self.bad_command:
+            raise ScenarioFailed(f'bad command: {self.bad_command}')
+        for e in c.events_of('simulator', *FAULTS):
+            raise ScenarioFailed(f'unstable: the simulator reports {e.kind} at simulated '
+                                 f"t = {float(e.values.get('sim_time', t)):.2f} s and holds "
+                                 f'the arm: {e.message}')
+        rejected = c.events_of('simulator', 'rejected_command')
+        if rejected:
+            raise ScenarioFailed(f'bad command: the simulator rejected it: '
+                                 f'{rejected[-1].message}')
+        if self.controller is not None and not self.controller.alive():
+            raise ScenarioFailed(f'the controller exited with code '
+                                 f'{self.controller.proc.returncode} at simulated t = '
+                                 f'{t:.2f} s; its last output: '
+                                 f'{tail(self.controller.output())}')
+        if time.monotonic() > self.deadline:
+            budget = self.scenario.budget
+            if not self.commands:
+                raise ScenarioFailed(f'no commands on effort_controller/commands within the '
+                                     f'wall-clock budget of {budget:g} s (simulated time '
+                                     f'stood at t = {t:.2f} s)')
+            goal = '' if math.isnan(self.t_end) else f' of {self.t_end:.2f} s'
+            raise ScenarioFailed(f'too slow: simulated time reached t = {t:.2f} s{goal} '
+                                 f'within the wall-clock budget of {budget:g} s '
+                                 f'({self.commands} commands received)')
+
+    def _wait(self, condition: Callable[[], object], what: str) -> None:
+        assert self.client is not None
+        timeout = START_WAIT if math.isinf(self.deadline) else \
+            max(self.deadline - time.monotonic(), 0.0) + 5.0
+        self.client.spin_until(condition, timeout, what, self._watch)
+
+    # ------------------------------------------------------------------ running
+    def run(self) -> ScenarioResult:  # type: ignore[override]
+        sc = self.scenario
+        result = ScenarioResult(sc.name, sc.description)
+        started = time.monotonic()
+        (self.out / 'logs').mkdir(parents=True, exist_ok=True)
+        bag = self.out / 'bag'
+        sim = {'timing_mode': 'lockstep', 'pause_at': sc.start_hold,
+               'initial_positions': [float(v) for v in self.q0],
+               'initial_velocities': [0.0] * len(self.q0), **sc.simulator}
+        if sc.disturbances:
+            file = self.out / 'disturbances.yaml'
+            file.write_text(yaml.safe_dump(sc.disturbances, sort_keys=False))
+            sim['disturbance_file'] = str(file.resolve())
+        self._start('recorder', output=str(bag))
+        self._start('visualizer')
+        # The first state waits until the recorder, the planner and the reference node
+        # have matched joint_states: a node matched later may get no state while time
+        # stands paused (the reference node then refuses the trajectory, as it cannot
+        # know where the motion starts).
+        self._start('simulator', wait_for_nodes=['recorder', 'planner', 'check_reference'],
+                    **sim)
+        self._start('planner')
+        self.procs.append(NodeProcess(
+            'check_reference', params_file=self.params_files,
+            node_params={'check_reference': {'use_sim_time': True}},
+            remaps=REFERENCE_REMAPS, domain_id=self.domain,
+            log_path=self.out / 'logs' / 'check_reference.log'))
+        from std_msgs.msg import Float64MultiArray
+
+        c = self.client = SuiteClient(self.domain)
+        c.follow_reference(REFERENCE_TOPIC)
+        c.node.create_subscription(Float64MultiArray, 'effort_controller/commands',
+                                   self._on_command, 1000)
+        codes: dict[str, int] = {}
+        try:
+            try:
+                self._drive(c)
+            except ScenarioFailed as exc:
+                result.reason = str(exc)
+            except SuiteError as exc:
+                result.reason = f'the harness: {exc} (logs: {self.out / "logs"})'
+            result.sim_time = max(c.sim_time, 0.0)
+            self._stop_controller(result)
+            codes.update({p.name: p.stop(signal.SIGINT) for p in self.procs
+                          if p.name != 'recorder'})
+            self._drain_recorder(c, topics=('joint_states',))
+        finally:
+            c.close()
+            self._stop_controller(result)
+            codes.update({p.name: p.stop(signal.SIGINT) for p in self.procs
+                          if p.name not in codes})
+        bad = {n: code for n, code in codes.items() if code not in (0, -signal.SIGINT)}
+        if bad:
+            self.warnings.append(f'nodes did not stop cleanly: {bad} (logs: '
+                                 f'{self.out / "logs"})')
+        result.warnings = self.warnings
+        self._grade(result, bag)
+        result.wall = time.monotonic() - started
+        return result
+
+    def _stop_controller(self, result: ScenarioResult) -> None:
+        if self.controller is not None and self.controller.proc.returncode is None:
+            self.controller.stop()
+
+    def _grade(self, result: ScenarioResult, bag: Path) -> None:
+        from arm_bag.analysis import NothingToAnalyse, analyze
+        from arm_bag.plot import plot_report
+        from arm_bag.reader import BagError
+
+        try:
+            report = analyze(bag)
+        except (NothingToAnalyse, BagError, OSError) as exc:
+            if result.reason is None:
+                result.reason = f'the harness: the bag cannot be analysed: {exc}'
+            return
+        result.bag = str(bag)
+        if result.reason is None:
+            result.metrics = grade(report, self.scenario, self.arm)
+        try:
+            result.picture = str(plot_report(report, self.out / 'report.png'))
+        except Exception as exc:  # a picture is a bonus: never fail the grade for it
+            self.warnings.append(f'no picture: {exc}')
+
+    def _start_controller(self, c: SuiteClient) -> None:
+        if self.command:
+            self.controller = ControllerProcess(self.command, self.domain,
+                                                self.out / 'logs' / 'your_controller.log')
+        else:
+            def publisher() -> bool:
+                return bool(c.node.get_publishers_info_by_topic('/effort_controller/commands'))
+
+            if not publisher():
+                self.echo(f'    waiting for your controller on ROS domain {self.domain} '
+                          '(ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST): it subscribes '
+                          f'joint_states and {REFERENCE_TOPIC} or '
+                          'arm_controller/joint_trajectory, publishes '
+                          'effort_controller/commands (Ctrl-C stops)')
+                c.spin_until(publisher, math.inf, 'your controller', Demo._alive.__get__(self))
+
+    def _drive(self, c: SuiteClient) -> None:
+        sc = self.scenario
+        needed = [('recorder', t) for t in DEFAULT_TOPICS] + [
+            ('planner', 'joint_states'), ('planner', 'goal_pose'),
+            ('visualizer', 'joint_states'), ('check_reference', 'joint_states'),
+            ('check_reference', 'arm_controller/joint_trajectory')]
+        # The controller starts with the suite: the simulator holds t = 0 until the
+        # recorder has matched it, and lockstep makes the run independent of who came first.
+        self._start_controller(c)
+        for node, topic in needed:
+            self._wait(functools.partial(c.subscribed, topic, node),
+                       f'the {node} to subscribe {topic}')
+        self._wait(lambda: self._recorded(c, 'joint_states'),
+                   'the recorder to record the first joint state')
+        # The budget runs from here: the suite is up, its first state out.
+        self.deadline = time.monotonic() + sc.budget
+        t_next = sc.start_hold
+        self._run_to_time(c, t_next)
+        for k, goal in enumerate(sc.goals, 1):
+            at = goal.at if goal.at is not None else t_next
+            self._run_to_time(c, at)
+            c.set_params('planner', mode=goal.mode, duration=goal.duration,
+                         time_scaling='quintic')
+            n_traj, n_events = len(c.trajectories), len(c.events)
+            n_status = len(c.trajectory_statuses)
+            accepted = len(c.events_of('check_reference', 'trajectory_accepted'))
+            c.publish_goal(*goal.tip)
+
+            def refusal(n: int = n_events, s: int = n_status) -> str | None:
+                return goal_refusal(c.events[n:], c.trajectory_statuses[s:])
+
+            self._wait(lambda: len(c.trajectories) > n_traj or refusal(),  # noqa: B023
+                       f'the plan of goal {k}')
+            if refusal():
+                raise ScenarioFailed(f'goal {k} {list(goal.tip)} m refused: {refusal()}')
+            self._wait(lambda: len(c.events_of('check_reference', 'trajectory_accepted'))
+                       > accepted, f'the trajectory of goal {k} to be accepted')  # noqa: B023
+            end = c.trajectories[-1].points[-1].time_from_start
+            duration = end.sec + end.nanosec * 1e-9
+            t_next = round((at + duration + sc.settle) / PERIOD) * PERIOD
+            self.t_end = t_next
+            self.echo(f'    t = {at:5.2f} s  goal {k}: {goal.mode} to '
+                      f'({goal.tip[0]:g}, {goal.tip[1]:g}) m, {duration:.2f} s of motion')
+        self._run_to_time(c, t_next)
+
+    def _run_to_time(self, c: SuiteClient, t: float) -> None:
+        """Let simulated time run to ``t`` (the simulator pauses there) and wait for it."""
+        if c.sim_time >= t - 1e-9 or self._paused_at(c, t):
+            return
+        c.set_params('simulator', pause_at=t)
+        self._wait(lambda: c.sim_time >= t - 1e-9 or self._paused_at(c, t),
+                   f'simulated time {t:.2f} s')
+
+
+def run_suite(suite: Suite, out: Path, domain_id: int, command: Sequence[str] | None,
+              echo: Callable[[str], None] = print) -> list[ScenarioResult]:
+    """Run every scenario of ``suite`` (each in ``out/<name>/``); progress to ``echo``."""
+    results = []
+    n = len(suite.scenarios)
+    for k, sc in enumerate(suite.scenarios, 1):
+        echo(f'[{k}/{n}] {sc.name}: {sc.description}' if sc.description else
+             f'[{k}/{n}] {sc.name}')
+        res = ScenarioRun(sc, out / sc.name, domain_id, command, echo).run()
+        verdict = 'pass' if res.passed else 'FAIL: ' + '; '.join(res.failures())
+        echo(f'    {verdict}  ({res.wall:.1f} s wall, {res.sim_time:.2f} s simulated)')
+        for w in res.warnings:
+            echo(f'    warning: {w}')
+        results.append(res)
+    return results

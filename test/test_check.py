@@ -1,0 +1,168 @@
+"""``arm-sim check``: suites, grading output, the CLI's usage errors, the pytest plugin's
+light import, and (process tier) the check run against the example controller (passes),
+a sign-flipped copy of it (fails: runaway) and arm_sim's own controller (passes)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from xml.etree import ElementTree as ET
+
+import pytest
+
+from arm_sim.check.grade import MetricResult, ScenarioResult
+from arm_sim.check.output import junit, markdown, table
+from arm_sim.check.suite import SuiteFileError, load_suite, parse_suite
+from arm_sim.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / 'examples' / 'arm_check_example' / 'arm_check_example' / 'controller.py'
+LINE = {'name': 'l', 'start_tip': [0.5, 1.2],
+        'goals': [{'tip': [1.4, 0.2], 'mode': 'straight_line', 'duration': 0.8}],
+        'thresholds': {'line_deviation': 0.01}}
+
+
+def test_the_shipped_suite_is_the_lectures():
+    suite = load_suite()
+    assert [s.name for s in suite.scenarios] == [
+        'regulation', 'line_slow', 'line_fast', 'goal_while_moving', 'push', 'noisy_arm']
+    fast = suite.select(['line_fast']).scenarios[0]
+    assert fast.thresholds == {'final_error': 0.003, 'peak_torque': [57.0, 19.0],
+                               'saturation': 0.01, 'line_deviation': 0.0105}
+    assert 'settling_time' in suite.scenarios[0].thresholds
+    assert suite.scenarios[4].disturbances['pushes'][0]['tip_force'] == [0.0, -30.0]
+
+
+@pytest.mark.parametrize('change, words', [
+    ({'thresholds': {'line_dev': 1}}, "scenarios[0] (l): thresholds.line_dev: unknown metric"),
+    ({'thresholds': {'line_deviation': -1}}, 'thresholds.line_deviation: must be > 0 m, got -1'),
+    ({'thresholds': {'settling_time': 2}}, 'thresholds.settling_time: only for regulation'),
+    ({'thresholds': {'peak_torque': [1, 2, 3]}}, 'peak_torque: 3 values for 2 joints'),
+    ({'goals': [{'tip': [1, 'a']}]}, "goals[0].tip: a number, got 'a'"),
+    ({'goals': [{'tip': [1, 1], 'mode': 'fly'}]}, "goals[0].mode: one of regulation, "
+                                                   "straight_line, got 'fly'"),
+    ({'goals': [{'tip': [1, 1], 'at': 0.123}]}, 'goals[0].at: 0.123 s is not a whole number'),
+    ({'simulator': {'timing_mode': 'wall_clock'}}, 'simulator.timing_mode: not settable'),
+    ({'speed': 1}, "unknown key 'speed'"),
+    ({'disturbances': {'pushes': [{'at': 1.0, 'tip_force': [1, 2], 'shape': 'kick'}]}},
+     "'kick'"),
+])
+def test_a_bad_suite_is_refused_naming_the_entry_and_value(change, words):
+    with pytest.raises(SuiteFileError) as err:
+        parse_suite({'scenarios': [{**LINE, **change}]}, 'my.yaml')
+    assert str(err.value).startswith('my.yaml: ')
+    assert words in str(err.value)
+
+
+def test_usage_errors_are_one_line_and_exit_2(tmp_path, capsys):
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('scenarios: [{name: x, goals: [{tip: [1, 1]}], thresholds: '
+                   '{final_error: oops}}]\n')
+    for argv, words in [
+        (['check', '--suite', str(bad), '--', 'true'],
+         "scenarios[0] (x): thresholds.final_error: a number, got 'oops'"),
+        (['check', 'python3', 'ctl.py'], 'put your controller after "--"'),
+        (['check', '--budget', '-1', '--', 'true'], '--budget must be a positive number'),
+        (['check', '--scenario', 'nope', '--', 'true'], "no scenario 'nope'"),
+        (['check', '--', 'no-such-controller-here'], 'no-such-controller-here: command not'),
+    ]:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count('\n') == 1 and err.startswith('arm-sim check: ') and words in err
+    assert main(['check', '--list']) == 0
+    assert 'line_fast: straight line' in capsys.readouterr().out
+
+
+def _results() -> list[ScenarioResult]:
+    ok = ScenarioResult('line_fast', 'fast', [MetricResult('line_deviation', 0.0035, 0.0105,
+                                                           True)], sim_time=2.3)
+    bad = ScenarioResult('regulation', 'reg', [
+        MetricResult('final_error', 0.075, 0.003, False),
+        MetricResult('settling_time', None, 3.45, False, 'never settles'),
+        MetricResult('peak_torque', [51.5, 10.6], [57.0, 19.0], True)], sim_time=4.33)
+    crashed = ScenarioResult('push', '', reason='the controller exited with code 1')
+    return [ok, bad, crashed]
+
+
+def test_junit_has_one_testcase_per_scenario_with_the_failing_metrics(tmp_path):
+    suite = load_suite()
+    root = ET.fromstring(junit(_results(), suite))
+    ts = root.find('testsuite')
+    assert ts is not None and (ts.get('tests'), ts.get('failures')) == ('3', '2')
+    cases = {c.get('name'): c for c in ts.iter('testcase')}
+    assert cases['line_fast'].find('failure') is None
+    fail = cases['regulation'].find('failure')
+    assert fail is not None
+    assert fail.get('message') == ('final_error 75.0 mm > 3.0 mm; settling_time: never '
+                                   'settles')
+    assert cases['push'].find('failure').get('message') == \
+        'the controller exited with code 1'
+    text = table(_results())
+    assert 'regulation  peak_torque' in text and '1 of 3 scenarios passed' in text
+    assert '## regulation: FAIL' in markdown(_results(), suite, tmp_path)
+
+
+def test_the_pytest_plugin_is_registered_and_imports_light():
+    from importlib.metadata import entry_points
+
+    assert [e.value for e in entry_points(group='pytest11') if e.name == 'arm_sim'] == \
+        ['arm_sim.testing']
+    code = ('import sys, arm_sim.testing; '
+            'print(sorted(m for m in ("rclpy", "numpy", "arm_sim.check.harness") '
+            'if m in sys.modules))')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=60)
+    assert out.stdout.strip() == '[]', out.stderr
+
+
+def _check(tmp_path: Path, name: str, *args: str) -> tuple[subprocess.CompletedProcess,
+                                                            dict, ET.Element]:
+    report, xml = tmp_path / name, tmp_path / f'{name}.xml'
+    res = subprocess.run([sys.executable, '-m', 'arm_sim.cli', 'check', '--report',
+                          str(report), '--junit', str(xml), *args], capture_output=True,
+                         text=True, timeout=400)
+    assert xml.is_file(), res.stdout + res.stderr
+    return res, json.loads((report / 'results.json').read_text()), ET.parse(xml).getroot()
+
+
+@pytest.mark.process
+@pytest.mark.timeout(600)
+def test_check_grades_the_example_its_sign_flipped_copy_and_arm_sims_controller(tmp_path):
+    # The example controller (topics only): the whole lecture suite passes.
+    ok, doc, xml = _check(tmp_path, 'example', '--', sys.executable, str(EXAMPLE))
+    assert ok.returncode == 0, ok.stdout + ok.stderr
+    assert doc['passed'] and len(doc['scenarios']) == 6
+    assert len(xml.findall('.//testcase')) == 6 and not xml.findall('.//failure')
+    assert (tmp_path / 'example' / 'line_fast' / 'report.png').is_file()
+    assert (tmp_path / 'example' / 'push' / 'bag' / 'metadata.yaml').is_file()
+    fast = next(s for s in doc['scenarios'] if s['name'] == 'line_fast')
+    dev = next(m for m in fast['metrics'] if m['name'] == 'line_deviation')
+    assert dev['value'] < dev['threshold'] / 2  # margin: 3.5 of 10.5 mm
+
+    # The same controller again: the same report, bit for bit.
+    again, doc2, _ = _check(tmp_path, 'again', '--scenario', 'line_fast', '--',
+                            sys.executable, str(EXAMPLE))
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert doc2['scenarios'][0] == fast
+
+    # A sign-flipped copy: every scenario fails with the runaway, the next one still runs.
+    flipped = tmp_path / 'flipped.py'
+    text = EXAMPLE.read_text()
+    assert text.count('\nSIGN = 1.0 ') == 1
+    flipped.write_text(text.replace('\nSIGN = 1.0 ', '\nSIGN = -1.0 '))
+    bad, doc, xml = _check(tmp_path, 'flipped', '--scenario', 'regulation', '--scenario',
+                           'line_fast', '--', sys.executable, str(flipped))
+    assert bad.returncode == 1, bad.stdout + bad.stderr
+    assert [s['name'] for s in doc['scenarios']] == ['regulation', 'line_fast']
+    for s, fail in zip(doc['scenarios'], xml.findall('.//failure')):
+        assert not s['passed'] and 'unstable: the simulator reports runaway' in s['reason']
+        assert 'runaway' in fail.get('message', '')
+
+    # arm_sim's own controller, as a user's command.
+    own, doc, _ = _check(tmp_path, 'own', '--scenario', 'line_fast', '--scenario', 'push',
+                         '--', sys.executable, '-m', 'arm_control.controller_node',
+                         '--ros-args', '--params-file', str(ROOT / 'config' / 'arm.yaml'))
+    assert own.returncode == 0, own.stdout + own.stderr
+    assert '2 of 2 scenarios passed' in own.stdout
