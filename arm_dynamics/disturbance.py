@@ -84,6 +84,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from arm_common.yamlfile import YamlFileError, read_yaml
+
 #: Push kinds: a tip force [N] or joint torques [N m] (as an impulse: N s, N m s).
 PUSH_KINDS = ('tip_force', 'joint_torque')
 #: Push shapes.
@@ -325,30 +327,12 @@ class Disturbances:
         the file, the entry and the bad value (also for an unreadable file, bad YAML or
         UTF-8, a file over :data:`MAX_FILE_BYTES`, YAML anchors or aliases, nesting deeper
         than :data:`MAX_DEPTH`)."""
-        import yaml
-
         where = str(path)
         try:
-            with open(path, 'rb') as f:
-                data = f.read(MAX_FILE_BYTES + 1)
-        except OSError as exc:
-            raise DisturbanceError(f'{where}: cannot read it: {exc.strerror or exc}') from None
-        if len(data) > MAX_FILE_BYTES:
-            raise DisturbanceError(f'{where}: more than {MAX_FILE_BYTES} bytes: a disturbance '
-                                   'file is a short list of pushes and faults')
-        try:
-            text = data.decode('utf-8')
-        except UnicodeDecodeError as exc:
-            raise DisturbanceError(f'{where}: not UTF-8 text: {exc.reason} at byte '
-                                   f'{exc.start}') from None
-        try:
-            doc = yaml.load(text, Loader=_loader())  # a yaml.SafeLoader subclass
-        except DisturbanceError as exc:
+            doc = read_yaml(path, max_bytes=MAX_FILE_BYTES, max_depth=MAX_DEPTH,
+                            what='a disturbance file is a short list of pushes and faults')
+        except YamlFileError as exc:
             raise DisturbanceError(f'{where}: {exc}') from None
-        except yaml.YAMLError as exc:
-            first = str(exc).strip().splitlines()
-            raise DisturbanceError(
-                f"{where}: not YAML: {' '.join(s.strip() for s in first)}") from None
         return cls.from_mapping(doc, n=n, joint_names=joint_names,
                                 physics_step_ns=physics_step_ns, source=where,
                                 tip_forces=tip_forces)
@@ -596,37 +580,6 @@ def braked_forward_dynamics(model: ArmModel, q, qd, tau, locked) -> np.ndarray:
         d = np.asarray(model.mass_matrix(q), dtype=float)
         qdd[free] = np.linalg.solve(d[np.ix_(free, free)], (tau - h)[free])
     return qdd
-
-
-# ---------------------------------------------------------------------- the file
-def _loader() -> type:
-    """PyYAML's safe loader refusing anchors and aliases (an alias repeats a node without
-    copying it: nine nested ones make 10^9 values out of a few lines) and collections
-    nested deeper than :data:`MAX_DEPTH`, while composing, before anything is built (the
-    approach of the sweep specs' loader)."""
-    import yaml
-
-    class ScenarioLoader(yaml.SafeLoader):
-        depth = 0
-
-        def compose_node(self, parent, index):
-            event = self.peek_event()
-            line = event.start_mark.line + 1
-            if isinstance(event, yaml.AliasEvent) or getattr(event, 'anchor', None):
-                mark = '*' if isinstance(event, yaml.AliasEvent) else '&'
-                raise DisturbanceError(f'line {line}: YAML anchors and aliases '
-                                       f'({mark}{event.anchor}) are not accepted: write the '
-                                       'values out')
-            if self.depth >= MAX_DEPTH:
-                raise DisturbanceError(f'line {line}: nested more than {MAX_DEPTH} levels '
-                                       'deep')
-            self.depth += 1
-            try:
-                return super().compose_node(parent, index)
-            finally:
-                self.depth -= 1
-
-    return ScenarioLoader
 
 
 class _Parser:

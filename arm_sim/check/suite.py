@@ -13,6 +13,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from arm_common.yamlfile import YamlFileError, read_yaml
+
+#: Bounds on a suite file (read with arm_common.yamlfile: no aliases, bounded nesting).
+MAX_SUITE_BYTES = 1_000_000
+MAX_SUITE_DEPTH = 16
 PERIOD = 0.01  # s: the control period of config/arm.yaml (publish_rate 100 Hz)
 N_JOINTS = 2  # the suites drive the 2-R arm of config/arm.yaml
 
@@ -130,17 +135,12 @@ def default_suite_path() -> Path:
 
 def load_suite(path: str | Path | None = None) -> Suite:
     """Read and validate the suite file at ``path`` (default: the lecture's)."""
-    import yaml
-
     path = Path(path) if path is not None else default_suite_path()
     try:
-        text = path.read_text()
-    except OSError as exc:
-        raise SuiteFileError(f'{path}: cannot read it ({exc.strerror})') from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise SuiteFileError(f'{path}: not YAML ({" ".join(str(exc).split())})') from None
+        data = read_yaml(path, max_bytes=MAX_SUITE_BYTES, max_depth=MAX_SUITE_DEPTH,
+                         what='a suite is a short list of scenarios')
+    except YamlFileError as exc:
+        raise SuiteFileError(f'{path}: {exc}') from None
     return parse_suite(data, str(path))
 
 

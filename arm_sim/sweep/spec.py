@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from arm_common.params import ParamSpec, resolve
+from arm_common.yamlfile import YamlFileError, read_yaml
 from arm_control.laws import BATCH_LAWS, Gains
 from arm_control.model_params import CONTROL_MODEL_PARAMS, MODEL_KEYS, controller_model
 from arm_dynamics.friction import JointFriction
@@ -311,18 +312,10 @@ def control_model_setting(value: object, base: Path | None = None) -> ControlMod
         path = base / path
     where = f'control_model {value}'
     try:
-        with open(path, 'rb') as f:
-            data = f.read(MAX_SPEC_BYTES + 1)
-    except OSError as exc:
-        raise ValueError(f'{where}: cannot read it: {exc.strerror or exc}') from None
-    if len(data) > MAX_SPEC_BYTES:
-        raise ValueError(f'{where}: more than {MAX_SPEC_BYTES} bytes: not a params file')
-    import yaml
-    try:
-        doc = yaml.load(data.decode('utf-8', 'replace'), Loader=_loader())
-    except (yaml.YAMLError, SpecError) as exc:
-        first = str(exc).strip().splitlines()
-        raise ValueError(f"{where}: not YAML: {' '.join(s.strip() for s in first)}") from None
+        doc = read_yaml(path, max_bytes=MAX_SPEC_BYTES, max_depth=MAX_SPEC_DEPTH,
+                        what='not a params file')
+    except YamlFileError as exc:
+        raise ValueError(f'{where}: {exc}') from None
     found: dict[str, Any] = {}
     for section in ('/**', '/**/controller'):
         params = doc.get(section, {}) if isinstance(doc, dict) else None
@@ -891,55 +884,14 @@ def _plot_spec(value: object, spec: Spec) -> PlotSpec | None:
     return ps
 
 
-def _loader() -> type:
-    """PyYAML's safe loader, refusing anchors and aliases (an alias repeats a node without
-    copying it: nine nested ones make 10^9 values out of a few lines) and collections
-    nested deeper than :data:`MAX_SPEC_DEPTH`, while composing, before anything is built."""
-    import yaml
-
-    class SpecLoader(yaml.SafeLoader):
-        depth = 0
-
-        def compose_node(self, parent, index):
-            event = self.peek_event()
-            line = event.start_mark.line + 1
-            if isinstance(event, yaml.AliasEvent) or getattr(event, 'anchor', None):
-                mark = '*' if isinstance(event, yaml.AliasEvent) else '&'
-                raise SpecError(f'line {line}: YAML anchors and aliases ({mark}{event.anchor}) '
-                                'are not accepted in a spec: write the values out')
-            if self.depth >= MAX_SPEC_DEPTH:
-                raise SpecError(f'line {line}: nested more than {MAX_SPEC_DEPTH} levels deep')
-            self.depth += 1
-            try:
-                return super().compose_node(parent, index)
-            finally:
-                self.depth -= 1
-
-    return SpecLoader
-
-
 def load_spec(path: str | Path) -> Spec:
     """Read and validate a YAML spec; raises :class:`SpecError` (also for an unreadable
     file, bad YAML, a file over :data:`MAX_SPEC_BYTES`, YAML anchors or aliases)."""
-    import yaml
-
     try:
-        with open(path, 'rb') as f:
-            data = f.read(MAX_SPEC_BYTES + 1)
-    except OSError as exc:
-        raise SpecError(f'cannot read it: {exc.strerror or exc}') from None
-    if len(data) > MAX_SPEC_BYTES:
-        raise SpecError(f'more than {MAX_SPEC_BYTES} bytes: a spec is a short text (its '
-                        'axes make the scenarios)')
-    try:
-        text = data.decode('utf-8')
-    except UnicodeDecodeError as exc:
-        raise SpecError(f'not UTF-8 text: {exc.reason} at byte {exc.start}') from None
-    try:
-        doc = yaml.load(text, Loader=_loader())  # a yaml.SafeLoader subclass
-    except yaml.YAMLError as exc:
-        first = str(exc).strip().splitlines()
-        raise SpecError(f"not YAML: {' '.join(s.strip() for s in first)}") from None
+        doc = read_yaml(path, max_bytes=MAX_SPEC_BYTES, max_depth=MAX_SPEC_DEPTH,
+                        what='a spec is a short text (its axes make the scenarios)')
+    except YamlFileError as exc:
+        raise SpecError(str(exc)) from None
     return parse_spec(doc, Path(path).stem, Path(path).parent)
 
 
