@@ -166,6 +166,30 @@ class _Side(asyncio.Protocol):
         if self.peer is not None and self.peer.transport is not None:
             self.peer.transport.resume_reading()
 
+    def data_received(self, data: bytes) -> None:
+        """Relay once relaying; before that, gather the HTTP head and hand it, with the
+        bytes after it, to :meth:`head_received` (:meth:`head_too_long` if it grows past
+        :data:`MAX_HEAD` without ending)."""
+        if self.relaying:
+            self._send_peer(data)
+            return
+        self.head += data
+        end = self.head.find(b'\r\n\r\n')
+        if end < 0:
+            if len(self.head) > MAX_HEAD:
+                self.head_too_long()
+            return
+        head, rest = bytes(self.head[:end + 4]), bytes(self.head[end + 4:])
+        self.head.clear()
+        self.relaying = True  # from now on (more than the head): to the peer
+        self.head_received(head, rest)
+
+    def head_received(self, head: bytes, rest: bytes) -> None:
+        raise NotImplementedError
+
+    def head_too_long(self) -> None:
+        raise NotImplementedError
+
     def _send_peer(self, data: bytes | bytearray) -> None:
         if self.peer is not None and self.peer.transport is not None:
             self.peer.transport.write(data)
@@ -198,19 +222,11 @@ class _ClientSide(_Side):
             self.transport.write(refusal_response(reason, status))
             self.transport.close()
 
-    def data_received(self, data: bytes) -> None:
-        if self.relaying:
-            self._send_peer(data)
-            return
-        self.head += data
-        end = self.head.find(b'\r\n\r\n')
-        if end < 0:
-            if len(self.head) > MAX_HEAD:
-                self._refuse(f'upgrade request longer than {MAX_HEAD} bytes', 431)
-            return
-        head, rest = bytes(self.head[:end + 4]), bytes(self.head[end + 4:])
-        self.head.clear()
-        self.relaying = True  # from now on (more than the head): to the SDK
+    def head_too_long(self) -> None:
+        self._refuse(f'upgrade request longer than {MAX_HEAD} bytes', 431)
+
+    def head_received(self, head: bytes, rest: bytes) -> None:
+        """The client's upgrade request: refused, or rewritten and sent to the SDK."""
         self.timer.cancel()
         decision = upgrade_request(head)
         if isinstance(decision, str):
@@ -246,22 +262,14 @@ class _ServerSide(_Side):
         self.peer = client
         self.up = up
 
-    def data_received(self, data: bytes) -> None:
-        if self.relaying:
-            self._send_peer(data)
-            return
-        self.head += data
-        end = self.head.find(b'\r\n\r\n')
-        if end < 0:
-            if len(self.head) > MAX_HEAD:
-                self._send_peer(self.head)
-                self.head.clear()
-                self.relaying = True
-            return
-        status, head = upgrade_response(bytes(self.head[:end + 4]), self.up.legacy)
-        rest = bytes(self.head[end + 4:])
+    def head_too_long(self) -> None:
+        self._send_peer(self.head)  # not an answer this front understands: passed on
         self.head.clear()
         self.relaying = True
+
+    def head_received(self, head: bytes, rest: bytes) -> None:
+        """The SDK's answer to the upgrade: renamed back for a legacy client, relayed."""
+        status, head = upgrade_response(head, self.up.legacy)
         self._send_peer(head + rest)
         if status != 101:
             body = rest.decode('utf-8', 'replace').strip()
