@@ -19,9 +19,14 @@ KNOWN_TOPICS = {
     'planner/path': 'nav_msgs/msg/Path',
     'markers': 'visualization_msgs/msg/MarkerArray',
     'robot_description': 'std_msgs/msg/String',
+    # The visualizer's frames (as robot_state_publisher's): the movable joints per joint
+    # state, and the fixed ones once (transient local).
+    'tf': 'tf2_msgs/msg/TFMessage',
+    'tf_static': 'tf2_msgs/msg/TFMessage',
     'clock': 'rosgraph_msgs/msg/Clock',
     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
 }
 #: Known topics whose publishers are transient local (latched).
-LATCHED = frozenset({'planner/path', 'arm_controller/trajectory_status', 'robot_description'})
+LATCHED = frozenset({'planner/path', 'arm_controller/trajectory_status', 'robot_description',
+                     'tf_static'})
 DEFAULT_TOPICS = list(KNOWN_TOPICS)

@@ -85,7 +85,7 @@ def node_env(domain_id: int | None = None, localhost: bool = True) -> dict[str, 
 #: [recorder]``, :mod:`arm_common.gate`) and the topics each gates.
 GATED = {'simulator': ('joint_states', 'clock'),
          'controller': ('effort_controller/commands', 'arm_controller/reference'),
-         'visualizer': ('markers',)}
+         'visualizer': ('markers', 'tf')}
 
 
 def recorder_gates(params_file: str | Path | None) -> dict[str, dict]:

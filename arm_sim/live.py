@@ -13,10 +13,11 @@ extra ``foxglove``, imported only when a bridge is made) and the computations it
   ``std_msgs/msg/String``, latched) and the frames ``base_link -> link1 -> link2 -> tool0``
   from each joint state (:func:`arm_transforms`, the arm's own kinematics) as
   ``foxglove.FrameTransforms`` on ``/tf``.
-* **Client publishing**: a client-advertised channel on ``goal_pose``
-  (``geometry_msgs/msg/PoseStamped``, ``cdr`` or ``json``; Foxglove's "Publish pose" tool)
-  is handed to the node, which publishes it into ROS. Other client channels are refused
-  with a status message to the clients.
+* **Client publishing**: a client-advertised channel on a topic of
+  :data:`CLIENT_CHANNELS` (``cdr`` or ``json``) is handed to the node, which publishes it
+  into ROS: ``goal_pose`` (``geometry_msgs/msg/PoseStamped``; Foxglove's "Publish pose"
+  tool) and ``simulator/push`` (``geometry_msgs/msg/WrenchStamped``, a tip push; Foxglove's
+  Publish panel). Other client channels are refused with a status message to the clients.
 * **Both names of the protocol**: foxglove-sdk accepts only the subprotocol
   ``foxglove.sdk.v1``; stock clients offer ``foxglove.websocket.v1`` (the same protocol).
   The bridge's front (:mod:`arm_sim.live_front`) listens on the public address, relays
@@ -26,11 +27,12 @@ extra ``foxglove``, imported only when a bridge is made) and the computations it
   simulated time (the latest ``clock``), as foxglove_bridge does with ``use_sim_time``, so
   the 3D panel's time is the joint states' stamps' time.
 
-* **Validation** (:func:`stamp_refusal`, :func:`text_refusal`, :func:`pose_refusal`):
-  a stamp or time that is negative, overflows ``builtin_interfaces/Time`` or has
-  ``nanosec`` outside [0, 1e9), a frame id with a NUL character and a non-finite number
-  are refused with the reason, whether they come from a ROS topic or a client; the node
-  reports them and keeps serving.
+* **Validation** (:func:`stamp_refusal`, :func:`text_refusal`,
+  :meth:`ClientChannel.refusal`): a stamp or time that is negative, overflows
+  ``builtin_interfaces/Time`` or has ``nanosec`` outside [0, 1e9), a frame id with a NUL
+  character, a non-finite number and a push's force or torque component beyond
+  :data:`~arm_dynamics.disturbance.MAX_LOAD` are refused with the reason, whether they
+  come from a ROS topic or a client; the node reports them and keeps serving.
 
 The SDK calls the listener from its own threads; they only queue work (:meth:`Bridge.poll`
 takes it on the caller's thread), so every ROS call stays on the node's thread.
@@ -42,6 +44,7 @@ the OMG CDR encapsulation (XCDR1, little endian) rosbag2 and rmw use.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import queue
@@ -53,6 +56,7 @@ from typing import Any, cast
 
 from arm_bag.cdr import Cursor
 from arm_bag.msgdefs import schema_text
+from arm_dynamics.disturbance import MAX_LOAD
 from arm_dynamics.models import RobotModel
 from arm_dynamics.urdf import link_frames
 
@@ -70,6 +74,9 @@ DESCRIPTION_TOPIC = 'robot_description'
 TF_TOPIC = 'tf'  # relative: /tf in the root namespace, as robot_state_publisher's
 GOAL_TOPIC = 'goal_pose'
 GOAL_TYPE = 'geometry_msgs/msg/PoseStamped'
+#: The simulator's live tip pushes (arm_dynamics.simulator_node: force x, y [N], base frame).
+PUSH_TOPIC = 'simulator/push'
+PUSH_TYPE = 'geometry_msgs/msg/WrenchStamped'
 #: Encodings the server accepts from publishing clients, preferred first (Foxglove
 #: publishes in the first one it supports).
 CLIENT_ENCODINGS = ('cdr', 'json')
@@ -187,22 +194,202 @@ def cdr_header(data: bytes, frame: bool = True) -> tuple[int, int, str]:
     return (sec - 2**32 if sec >= 2**31 else sec), nanosec, (c.string() if frame else '')
 
 
+# ---------------------------------------------------------------------- client channels
+def _finite(v: object) -> bool:
+    """Is ``v`` a finite number (not a bool; an int too large for a float is not)?"""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:
+        return False
+
+
+@dataclass(frozen=True)
+class Vector:
+    """A vector field of a client-published message: ``path`` from the message's root
+    (``pose.position``), its components ``keys`` (a missing one takes the message's default:
+    0, a quaternion's ``w`` 1) and the largest magnitude a component may have (None: any
+    finite number), in ``unit``."""
+
+    path: str
+    keys: str
+    bound: float | None = None
+    unit: str = ''
+
+
+@dataclass(frozen=True)
+class Stamped:
+    """A client's message, read and checked (:meth:`ClientChannel.from_json`): stamp
+    [s, ns], frame id, and the components of each of its channel's vectors, in order."""
+
+    sec: int
+    nanosec: int
+    frame_id: str
+    vectors: tuple[tuple[float, ...], ...]
+
+
+@dataclass(frozen=True)
+class ClientChannel:
+    """A topic clients may publish into ROS: one row of :data:`CLIENT_CHANNELS`.
+
+    Attributes
+    ----------
+    topic : relative ROS name, resolved by the node as its publisher's (``goal_pose``)
+    type_name : its ROS type, a message that begins with a ``std_msgs/Header``
+    kind : what one message is (``goal``): the node reports a refused one as
+        ``rejected_<kind>`` and logs ``<kind> published on <topic>``
+    counter : the node's /diagnostics count of published ones (``goals_published``)
+    vectors : the numeric fields checked (and read from JSON), each number finite
+    logged : index of the vector the node's log line shows (None: none)
+    """
+
+    topic: str
+    type_name: str
+    kind: str
+    counter: str
+    vectors: tuple[Vector, ...]
+    logged: int | None = None
+
+    @property
+    def short_type(self) -> str:
+        """The type without its package (``PoseStamped``)."""
+        return self.type_name.rsplit('/', 1)[-1]
+
+    @property
+    def rejected(self) -> str:
+        """The node's /diagnostics kind of a refused message (``rejected_goal``)."""
+        return f'rejected_{self.kind}'
+
+    def refusal(self, sec: object, nanosec: object, frame_id: object,
+                vectors: Sequence[Sequence[object]]) -> str | None:
+        """Why a message with these fields cannot be published into ROS, or None: a valid
+        stamp (:func:`stamp_refusal`), a frame id without NUL (:func:`text_refusal`), finite
+        numbers, each within its vector's bound; the reason names the first bad field."""
+        reason = (stamp_refusal(sec, nanosec, 'header.stamp')
+                  or text_refusal(frame_id, 'header.frame_id'))
+        if reason:
+            return reason
+        for vec, values in zip(self.vectors, vectors):
+            for k, v in zip(vec.keys, values):
+                if not _finite(v):
+                    return f'{vec.path}.{k} must be a finite number, got {v!r}'
+                if vec.bound is not None and abs(cast(float, v)) > vec.bound:
+                    unit = f' {vec.unit}' if vec.unit else ''
+                    return (f'{vec.path}.{k} = {v:g}{unit} is too large: at most '
+                            f'{vec.bound:g}{unit} in magnitude')
+        return None
+
+    def from_json(self, data: bytes | str) -> Stamped:
+        """Read one message a client sent JSON-encoded (ROS 2 ``nanosec`` or ROS 1
+        ``nsec`` stamps; missing fields take the message's defaults).
+
+        Raises
+        ------
+        ValueError
+            Not JSON, or a field of the wrong kind (named), or refused by :meth:`refusal`.
+        """
+        try:
+            doc = json.loads(data)
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise ValueError(f'not JSON: {exc}') from None
+        if not isinstance(doc, Mapping):
+            raise ValueError(f'a {self.short_type} must be a JSON object')
+        header = doc.get('header') or {}
+        stamp = header.get('stamp') or {} if isinstance(header, Mapping) else None
+        if not isinstance(header, Mapping) or not isinstance(stamp, Mapping):
+            raise ValueError('header.stamp must be an object with sec and nanosec')
+        sec, nsec = stamp.get('sec', 0), stamp.get('nanosec', stamp.get('nsec', 0))
+        if not all(isinstance(v, int) and not isinstance(v, bool) for v in (sec, nsec)):
+            raise ValueError(f'header.stamp must hold integers, got {dict(stamp)!r}')
+        frame = header.get('frame_id', '')
+        vectors = tuple(_numbers(self._object(doc, vec.path), vec) for vec in self.vectors)
+        reason = self.refusal(sec, nsec, frame, vectors)
+        if reason:
+            raise ValueError(reason)
+        return Stamped(int(sec), int(nsec), frame, vectors)
+
+    def _object(self, doc: Mapping[str, Any], path: str) -> Any:
+        """The value at ``path`` in ``doc`` (a missing or null one: {}); ValueError naming
+        the first object on the way that is none."""
+        parts = path.split('.')
+        node: Any = doc
+        for i, part in enumerate(parts[:-1]):
+            node = node.get(part) or {}
+            if not isinstance(node, Mapping):
+                where = '.'.join(parts[:i + 1])
+                inside = dict.fromkeys(v.path.split('.')[i + 1] for v in self.vectors
+                                       if v.path.startswith(where + '.'))
+                raise ValueError(f'{where} must be an object with {" and ".join(inside)}')
+        return node.get(parts[-1]) or {}
+
+    def read(self, msg: Any) -> tuple[tuple[object, ...], ...]:
+        """The vectors' components of a deserialised ROS message, unchecked."""
+        return tuple(tuple(getattr(_field(msg, vec.path), k) for k in vec.keys)
+                     for vec in self.vectors)
+
+    def fill(self, msg: Any, value: Stamped) -> Any:
+        """Set a (new) ROS message of :attr:`type_name` to ``value``; returns it."""
+        msg.header.stamp.sec, msg.header.stamp.nanosec = value.sec, value.nanosec
+        msg.header.frame_id = value.frame_id
+        for vec, values in zip(self.vectors, value.vectors):
+            target = _field(msg, vec.path)
+            for k, v in zip(vec.keys, values):
+                setattr(target, k, v)
+        return msg
+
+    def describe(self, value: Sequence[Sequence[object]]) -> str:
+        """The logged vector of ``value`` (:attr:`logged`), e.g. ``wrench.force (0, -30, 0)
+        N``; '' when the row logs none."""
+        if self.logged is None:
+            return ''
+        vec = self.vectors[self.logged]
+        numbers = ', '.join(f'{float(cast(float, v)):g}' for v in value[self.logged])
+        return f'{vec.path} ({numbers})' + (f' {vec.unit}' if vec.unit else '')
+
+
+def _field(msg: Any, path: str) -> Any:
+    return functools.reduce(getattr, path.split('.'), msg)
+
+
+def _numbers(d: Any, vec: Vector) -> tuple[float, ...]:
+    if not isinstance(d, Mapping):
+        raise ValueError(f'{vec.path} must be an object with {", ".join(vec.keys)}')
+    out = []
+    for k in vec.keys:
+        v = d.get(k, 1.0 if k == 'w' else 0.0)
+        if not _finite(v):
+            raise ValueError(f'{vec.path}.{k} must be a finite number, got {v!r}')
+        out.append(float(v))
+    return tuple(out)
+
+
+#: A goal for the tip (Foxglove's "Publish pose"; the planner takes it).
+GOAL_CHANNEL = ClientChannel(GOAL_TOPIC, GOAL_TYPE, 'goal', 'goals_published',
+                             (Vector('pose.position', 'xyz'),
+                              Vector('pose.orientation', 'xyzw')))
+#: A live tip push (the simulator holds force x, y for its push_duration); each component
+#: bounded as the simulator bounds a push's (arm_dynamics.disturbance.MAX_LOAD).
+PUSH_CHANNEL = ClientChannel(PUSH_TOPIC, PUSH_TYPE, 'push', 'pushes_published',
+                             (Vector('wrench.force', 'xyz', MAX_LOAD, 'N'),
+                              Vector('wrench.torque', 'xyz', MAX_LOAD, 'N m')), logged=0)
+#: The topics clients may publish into ROS; every other client channel is refused.
+CLIENT_CHANNELS: tuple[ClientChannel, ...] = (GOAL_CHANNEL, PUSH_CHANNEL)
+
+
+def resolved_client_topics(resolve: Any = None) -> dict[str, str]:
+    """Resolved topic -> ROS type of :data:`CLIENT_CHANNELS`; ``resolve`` maps a relative
+    name to its resolved one (a node's ``resolve_topic_name``; None: the root namespace)."""
+    return {(resolve(c.topic) if resolve else '/' + c.topic): c.type_name
+            for c in CLIENT_CHANNELS}
+
+
 def pose_refusal(sec: object, nanosec: object, frame_id: object,
                  position: Sequence[object], orientation: Sequence[object]) -> str | None:
-    """Why a PoseStamped with these fields cannot be published into ROS, or None: a valid
-    stamp (:func:`stamp_refusal`), a frame id without NUL (:func:`text_refusal`) and finite
-    numbers."""
-    reason = (stamp_refusal(sec, nanosec, 'header.stamp')
-              or text_refusal(frame_id, 'header.frame_id'))
-    if reason:
-        return reason
-    for what, keys, values in (('pose.position', 'xyz', position),
-                               ('pose.orientation', 'xyzw', orientation)):
-        for k, v in zip(keys, values):
-            if (isinstance(v, bool) or not isinstance(v, (int, float))
-                    or not math.isfinite(v)):
-                return f'{what}.{k} must be a finite number, got {v!r}'
-    return None
+    """Why a PoseStamped with these fields cannot be published into ROS, or None
+    (:meth:`ClientChannel.refusal` of :data:`GOAL_CHANNEL`): a valid stamp, a frame id
+    without NUL and finite numbers."""
+    return GOAL_CHANNEL.refusal(sec, nanosec, frame_id, (position, orientation))
 
 
 # ---------------------------------------------------------------------- messages
@@ -224,21 +411,9 @@ class GoalPose:
     orientation: tuple[float, float, float, float]
 
 
-def _numbers(d: Any, keys: str, what: str) -> tuple[float, ...]:
-    if not isinstance(d, Mapping):
-        raise ValueError(f'{what} must be an object with {", ".join(keys)}')
-    out = []
-    for k in keys:
-        v = d.get(k, 1.0 if k == 'w' else 0.0)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise ValueError(f'{what}.{k} must be a finite number, got {v!r}')
-        out.append(float(v))
-    return tuple(out)
-
-
 def pose_from_json(data: bytes | str) -> GoalPose:
-    """Read a PoseStamped a client sent JSON-encoded (ROS 2 ``nanosec`` or ROS 1 ``nsec``
-    stamps; missing fields take the message's defaults).
+    """Read a PoseStamped a client sent JSON-encoded (:meth:`ClientChannel.from_json` of
+    :data:`GOAL_CHANNEL`).
 
     Raises
     ------
@@ -247,58 +422,50 @@ def pose_from_json(data: bytes | str) -> GoalPose:
         or has ``nanosec`` outside [0, 1e9), a frame id with a NUL character, a non-finite
         number (:func:`pose_refusal`).
     """
-    try:
-        doc = json.loads(data)
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise ValueError(f'not JSON: {exc}') from None
-    if not isinstance(doc, Mapping):
-        raise ValueError('a PoseStamped must be a JSON object')
-    header = doc.get('header') or {}
-    stamp = header.get('stamp') or {} if isinstance(header, Mapping) else None
-    if not isinstance(header, Mapping) or not isinstance(stamp, Mapping):
-        raise ValueError('header.stamp must be an object with sec and nanosec')
-    sec, nsec = stamp.get('sec', 0), stamp.get('nanosec', stamp.get('nsec', 0))
-    if not all(isinstance(v, int) and not isinstance(v, bool) for v in (sec, nsec)):
-        raise ValueError(f'header.stamp must hold integers, got {dict(stamp)!r}')
-    frame = header.get('frame_id', '')
-    pose = doc.get('pose') or {}
-    if not isinstance(pose, Mapping):
-        raise ValueError('pose must be an object with position and orientation')
-    position = _numbers(pose.get('position') or {}, 'xyz', 'pose.position')
-    orientation = _numbers(pose.get('orientation') or {}, 'xyzw', 'pose.orientation')
-    reason = pose_refusal(sec, nsec, frame, position, orientation)
-    if reason:
-        raise ValueError(reason)
-    return GoalPose(int(sec), int(nsec), frame,
-                    (position[0], position[1], position[2]),
-                    (orientation[0], orientation[1], orientation[2], orientation[3]))
+    v = GOAL_CHANNEL.from_json(data)
+    p, o = v.vectors
+    return GoalPose(v.sec, v.nanosec, v.frame_id, (p[0], p[1], p[2]), (o[0], o[1], o[2], o[3]))
 
 
-def goal_channel_refusal(topic: str, goal_topic: str, encoding: str,
-                         schema_name: str) -> str | None:
-    """Why a client channel cannot be published into ROS (None: it can): only
-    ``goal_topic`` (resolved, e.g. ``/goal_pose``; the name without its leading slash is
-    accepted too), as a PoseStamped in one of :data:`CLIENT_ENCODINGS`."""
-    if topic not in (goal_topic, goal_topic.lstrip('/')):
-        return f'only {goal_topic} can be published into ROS, not {topic!r}'
+def accepted_topic(topic: str, accepted: Mapping[str, str]) -> str | None:
+    """The resolved topic of ``accepted`` a client's channel ``topic`` names (the name
+    without its leading slash counts too), or None."""
+    return next((name for name in accepted if topic in (name, name.lstrip('/'))), None)
+
+
+def client_channel_refusal(topic: str, accepted: Mapping[str, str], encoding: str,
+                           schema_name: str) -> str | None:
+    """Why a client channel cannot be published into ROS (None: it can): only a topic of
+    ``accepted`` (resolved topic -> ROS type, :func:`resolved_client_topics`; e.g. ``/goal_pose``,
+    or ``goal_pose``), as that type (an empty schema name is taken as it), in one of
+    :data:`CLIENT_ENCODINGS`."""
+    target = accepted_topic(topic, accepted)
+    if target is None:
+        names = list(accepted)
+        listed = ', '.join(names[:-1]) + ' and ' + names[-1] if len(names) > 1 else ''.join(
+            names)
+        return f'only {listed} can be published into ROS, not {topic!r}'
     if encoding not in CLIENT_ENCODINGS:
         return (f'{topic}: encoding {encoding!r} is not accepted (accepted: '
                 f'{", ".join(CLIENT_ENCODINGS)})')
-    if schema_name and schema_name.replace('/msg/', '/') != GOAL_TYPE.replace('/msg/', '/'):
-        return f'{topic}: schema {schema_name!r} is not {GOAL_TYPE}'
+    type_name = accepted[target]
+    if schema_name and schema_name.replace('/msg/', '/') != type_name.replace('/msg/', '/'):
+        return f'{topic}: schema {schema_name!r} is not {type_name}'
     return None
 
 
 # ---------------------------------------------------------------------- the server
 @dataclass(frozen=True)
 class ClientMessage:
-    """A message a client published on an accepted channel: ``encoding`` ``cdr`` (``data``
-    the serialised PoseStamped) or ``json``."""
+    """A message a client published on an accepted channel: ``topic`` as the client named
+    it, ``encoding`` ``cdr`` (``data`` the serialised message) or ``json``, and
+    ``ros_topic`` the resolved topic of :data:`CLIENT_CHANNELS` it is for."""
 
     client: int
     topic: str
     encoding: str
     data: bytes
+    ros_topic: str = ''
 
 
 @dataclass(frozen=True)
@@ -316,7 +483,9 @@ class Bridge:
     ----------
     host : address to listen on (``127.0.0.1``: this machine only)
     port : TCP port, 0 for a free one (:attr:`port` tells which)
-    goal_topic : resolved name of the topic clients may publish (``/goal_pose``)
+    client_topics : the topics clients may publish, resolved topic -> ROS type
+        (:func:`resolved_client_topics`; None: :data:`CLIENT_CHANNELS` in the root namespace,
+        ``/goal_pose`` and ``/simulator/push``)
     name : server name shown by Foxglove
     relay : serve through :class:`arm_sim.live_front.Front` (both subprotocol names, a
         reason for each refused handshake); False: the SDK alone on ``host``:``port``
@@ -331,13 +500,14 @@ class Bridge:
     """
 
     def __init__(self, host: str = '127.0.0.1', port: int = DEFAULT_PORT,
-                 goal_topic: str = '/' + GOAL_TOPIC, name: str = 'arm_sim',
+                 client_topics: Mapping[str, str] | None = None, name: str = 'arm_sim',
                  relay: bool = True) -> None:
         import foxglove
         from foxglove.websocket import Capability
 
         self._fox = foxglove
-        self.goal_topic = goal_topic
+        self.client_topics = dict(resolved_client_topics() if client_topics is None
+                                  else client_topics)
         self.context = foxglove.Context()
         self.channels: dict[str, Any] = {}
         self.latched: set[str] = set()
@@ -346,7 +516,8 @@ class Bridge:
         self.incoming: queue.SimpleQueue[ClientMessage | ConnectionRefusal | str] = (
             queue.SimpleQueue())
         self._lock = threading.Lock()
-        self._client_channels: dict[tuple[int, int], tuple[str, str]] = {}
+        # (client, its channel) -> (topic as named, encoding, resolved topic)
+        self._client_channels: dict[tuple[int, int], tuple[str, str, str]] = {}
         self._topic_of_id: dict[int, str] = {}
         # With the relay (arm_sim.live_front) the SDK listens on a loopback port of its own
         # and the front on host:port, accepting both names of the protocol.
@@ -476,13 +647,15 @@ class Bridge:
         return None
 
     def on_client_advertise(self, client: Any, channel: Any) -> None:
-        refusal = goal_channel_refusal(channel.topic, self.goal_topic, channel.encoding,
-                                       channel.schema_name)
-        if refusal:
+        refusal = client_channel_refusal(channel.topic, self.client_topics, channel.encoding,
+                                         channel.schema_name)
+        target = accepted_topic(channel.topic, self.client_topics)
+        if refusal or target is None:
             self.incoming.put(f'client {client.id}: {refusal}')
             return
         with self._lock:
-            self._client_channels[(client.id, channel.id)] = (channel.topic, channel.encoding)
+            self._client_channels[(client.id, channel.id)] = (channel.topic, channel.encoding,
+                                                              target)
 
     def on_client_unadvertise(self, client: Any, client_channel_id: int) -> None:
         with self._lock:
@@ -492,4 +665,5 @@ class Bridge:
         with self._lock:
             known = self._client_channels.get((client.id, client_channel_id))
         if known is not None:
-            self.incoming.put(ClientMessage(client.id, known[0], known[1], bytes(data)))
+            self.incoming.put(ClientMessage(client.id, known[0], known[1], bytes(data),
+                                            known[2]))

@@ -20,9 +20,14 @@ SDK's server on a loopback port of its own. A handshake it refuses (no subprotoc
 neither of these) gets HTTP 400 with the reason and is reported (``refused_connection``,
 naming what the client offered).
 
-A client's ``goal_pose`` (PoseStamped, ``cdr`` or ``json``: Foxglove's "Publish pose") is
-published into ROS on ``goal_pose``. Start it with ``arm-sim bringup --foxglove [PORT]`` or
-``arm-sim demo --foxglove [PORT]``; it logs ``serving ws://HOST:PORT`` once clients can
+Clients may publish into ROS on the topics of :data:`arm_sim.live.CLIENT_CHANNELS`
+(``cdr`` or ``json``), each resolved in the node's namespace as its publisher's: a
+``goal_pose`` (PoseStamped: Foxglove's "Publish pose") on ``goal_pose``, and a tip push on
+``simulator/push`` (WrenchStamped: Foxglove's Publish panel; the simulator holds force x, y
+[N] for its ``push_duration``). Each published one is logged (``client 1: push published on
+/simulator/push: wrench.force (0, -30, 0) N``) and counted on /diagnostics
+(``goals_published``, ``pushes_published``). Start it with ``arm-sim bringup --foxglove
+[PORT]`` or ``arm-sim demo --foxglove [PORT]``; it logs ``serving ws://HOST:PORT`` once clients can
 connect. A port that cannot be bound is refused (exit 2).
 
 No message takes it down: a ``clock`` or ``joint_states`` stamp that is negative, overflows
@@ -30,15 +35,18 @@ or has ``nanosec`` outside [0, 1e9), a joint state's frame id with a NUL charact
 non-finite positions, and a client's goal with any of these (or non-finite numbers) are
 refused, not forwarded: a throttled warning in the log, a status message to the clients
 (for theirs) and a /diagnostics report (``live: rejected_clock``,
-``rejected_joint_state``, ``rejected_goal``, ``refused_channel``). Anything else that fails
-while handling a message is reported as ``internal_error``; the node keeps serving.
+``rejected_joint_state``, ``rejected_goal``, ``refused_channel``); so is a client's push
+with any of these or a force or torque component beyond 1e6 (``rejected_push``). Anything
+else that fails while handling a message is reported as ``internal_error``; the node keeps
+serving.
 """
 
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
+from typing import Any
 
-from geometry_msgs.msg import PoseStamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -61,20 +69,19 @@ from arm_dynamics.models import joint_count, robot_model
 from arm_dynamics.robot import ROBOT_PARAMS
 from arm_dynamics.urdf import urdf_from_params
 from arm_sim.live import (
+    CLIENT_CHANNELS,
     DEFAULT_PORT,
     DESCRIPTION_TOPIC,
     FOXGLOVE_MISSING,
-    GOAL_TOPIC,
     TF_TOPIC,
     Bridge,
+    ClientChannel,
     ClientMessage,
     ConnectionRefusal,
     arm_transforms,
     cdr_header,
     cdr_string,
     joint_positions,
-    pose_from_json,
-    pose_refusal,
     stamp_refusal,
     text_refusal,
 )
@@ -85,11 +92,12 @@ foxglove.sdk.v1 or foxglove.websocket.v1, other handshakes refused with the reas
 as a channel (cdr, ros2msg schema), raw CDR forwarded at its receive time on simulated time;
 /robot_description (the URDF from the robot parameters) and /tf (foxglove.FrameTransforms
 base_link -> link1 -> link2 -> tool0 from the joint states) for the 3D panel; a client's
-goal_pose (Publish pose) is published into ROS. Connect Foxglove to ws://localhost:PORT.
+goal_pose (Publish pose) and simulator/push (a WrenchStamped tip push, Publish panel) are
+published into ROS. Connect Foxglove to ws://localhost:PORT.
 Stamps that are negative, overflow or have nanosec outside [0, 1e9), frame ids with NUL and
-non-finite numbers (on clock, joint_states or a client's goal) are refused with a throttled
-warning and a /diagnostics report (rejected_clock, rejected_joint_state, rejected_goal); the
-node keeps serving.
+non-finite numbers (on clock, joint_states or a client's goal or push; a push's components
+beyond 1e6) are refused with a throttled warning and a /diagnostics report (rejected_clock,
+rejected_joint_state, rejected_goal, rejected_push); the node keeps serving.
 '''
 LIVE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('port', 'int', DEFAULT_PORT, 'TCP port of the WebSocket server (0: a free one, '
@@ -98,6 +106,20 @@ LIVE_PARAMS: tuple[ParamSpec, ...] = (
               'machine only; 0.0.0.0: every interface). The SDK itself listens on a loopback '
               'port behind it', read_only=True),
 )
+
+
+@dataclass
+class Outlet:
+    """A client channel's way into ROS: its row, its message class, the node's publisher on
+    the resolved ``topic`` and how many it published."""
+
+    channel: ClientChannel
+    topic: str
+    cls: Any
+    publisher: Any
+    published: int = 0
+
+
 POLL_PERIOD = 0.02  # s (wall): how often client messages and new subscriptions are handled
 QUEUE_DEPTH = 100  # messages each subscription keeps
 
@@ -115,16 +137,25 @@ class LiveNode(Node):
             raise ConfigError(str(exc)) from None
         self.arm = robot_model(robot)
         self.joint_names = list(robot['joint_names'])
-        self.goal_topic = self.resolve_topic_name(GOAL_TOPIC)
+        # Clients' topics into ROS (arm_sim.live.CLIENT_CHANNELS), resolved as publishers'.
+        self.outlets: dict[str, Outlet] = {}
+        for row in CLIENT_CHANNELS:
+            name = self.resolve_topic_name(row.topic)
+            try:
+                cls = message_class(row.type_name)
+            except (ImportError, AttributeError) as exc:
+                raise ConfigError(f'cannot publish {name}: type {row.type_name} '
+                                  f'unavailable: {exc}') from None
+            self.outlets[name] = Outlet(row, name, cls, None)
         try:
-            self.bridge = Bridge(p['host'], p['port'], goal_topic=self.goal_topic)
+            self.bridge = Bridge(p['host'], p['port'], client_topics={
+                name: o.channel.type_name for name, o in self.outlets.items()})
         except ImportError:
             raise ConfigError(FOXGLOVE_MISSING) from None
         except OSError as exc:
             raise ConfigError(str(exc)) from None
         self.sim_ns = 0
         self.forwarded = 0
-        self.goals_published = 0
         self.diag = Diagnostics(self, sim_time=lambda: self.sim_ns * 1e-9)
         self.diag.set('OK', f'serving {self.bridge.url}', url=self.bridge.url)
         self.status_throttle = Throttle(1.0)  # status messages to the clients, per kind
@@ -132,7 +163,10 @@ class LiveNode(Node):
         self.description = self.resolve_topic_name(DESCRIPTION_TOPIC)
         self.states = self.resolve_topic_name('joint_states')
         self.clock = self.resolve_topic_name('clock')
-        topics = KNOWN_TOPICS  # the recorder's: markers and robot_description included
+        # The recorder's topics (markers and robot_description included), but not ROS's
+        # tf/tf_static: this node sends the frames itself, as foxglove.FrameTransforms on
+        # /tf (from each joint state), so the 3D panel gets each transform once.
+        topics = {t: ty for t, ty in KNOWN_TOPICS.items() if t not in ('tf', 'tf_static')}
         latched = {self.resolve_topic_name(t) for t in LATCHED}
         self.subs = []
         for rel, type_name in topics.items():
@@ -151,11 +185,12 @@ class LiveNode(Node):
                 cls, name, functools.partial(self._on_message, topic=name), qos, raw=True))
         if self.description in self.bridge.channels:
             self.bridge.forward(self.description, cdr_string(urdf), 0)
-        self.goals = self.create_publisher(PoseStamped, GOAL_TOPIC, 10)
+        for o in self.outlets.values():
+            o.publisher = self.create_publisher(o.cls, o.channel.topic, 10)
         self.create_timer(POLL_PERIOD, self.poll, clock=steady_clock())
         self.get_logger().info(f'serving {self.bridge.url} (Foxglove WebSocket; '
                                f'{len(self.bridge.channels)} topics, {self.tf_topic}, client '
-                               f'publishing on {self.goal_topic})')
+                               f'publishing on {", ".join(self.outlets)})')
 
     # ------------------------------------------------------------------ ROS -> clients
     def _on_message(self, data: bytes, *, topic: str) -> None:
@@ -223,7 +258,8 @@ class LiveNode(Node):
 
     # ------------------------------------------------------------------ clients -> ROS
     def poll(self) -> None:
-        """Latched topics to new subscribers; clients' goals into ROS. Never raises."""
+        """Latched topics to new subscribers; clients' goals and pushes into ROS. Never
+        raises."""
         try:
             items = self.bridge.poll()
         except Exception as exc:  # the SDK's errors must not stop the node
@@ -242,41 +278,42 @@ class LiveNode(Node):
                 self.diag.problem('internal_error', f'a client message failed: {exc!r}',
                                   'ERROR')
         self.diag.set('OK', f'serving {self.bridge.url}', url=self.bridge.url,
-                      forwarded=self.forwarded, goals_published=self.goals_published)
+                      forwarded=self.forwarded,
+                      **{o.channel.counter: o.published for o in self.outlets.values()})
 
     def _publish(self, m: ClientMessage) -> None:
+        """Publish a client's message into ROS on its channel's topic, checked first
+        (:meth:`ClientChannel.refusal`): a refused one is reported, not published."""
+        o = self.outlets[m.ros_topic]
+        row = o.channel
         if m.encoding == 'cdr':
-            try:  # refuse what is no PoseStamped
+            try:  # refuse what is no message of the type
                 sec, nanosec, frame = cdr_header(m.data)
-                msg = deserialize_message(m.data, PoseStamped)
+                msg = deserialize_message(m.data, o.cls)
             except Exception as exc:  # rclpy raises a bare RuntimeError-like error
-                self._refuse(m, f'not a CDR PoseStamped: {exc}')
+                self._refuse(m, row, f'not a CDR {row.short_type}: {exc}')
                 return
-            pt, o = msg.pose.position, msg.pose.orientation
-            reason = pose_refusal(sec, nanosec, frame, (pt.x, pt.y, pt.z),
-                                  (o.x, o.y, o.z, o.w))
+            vectors = row.read(msg)
+            reason = row.refusal(sec, nanosec, frame, vectors)
             if reason:
-                self._refuse(m, reason)
+                self._refuse(m, row, reason)
                 return
-            self.goals.publish(m.data)
+            o.publisher.publish(m.data)
         else:
             try:
-                pose = pose_from_json(m.data)
+                value = row.from_json(m.data)
             except ValueError as exc:
-                self._refuse(m, str(exc))
+                self._refuse(m, row, str(exc))
                 return
-            msg = PoseStamped()
-            msg.header.stamp.sec, msg.header.stamp.nanosec = pose.sec, pose.nanosec
-            msg.header.frame_id = pose.frame_id
-            pt, o = msg.pose.position, msg.pose.orientation
-            pt.x, pt.y, pt.z = pose.position
-            o.x, o.y, o.z, o.w = pose.orientation
-            self.goals.publish(msg)
-        self.goals_published += 1
-        self.get_logger().info(f'client {m.client}: goal published on {self.goal_topic}')
+            vectors = value.vectors
+            o.publisher.publish(row.fill(o.cls(), value))
+        o.published += 1
+        detail = row.describe(vectors)
+        self.get_logger().info(f'client {m.client}: {row.kind} published on {o.topic}'
+                               + (f': {detail}' if detail else ''))
 
-    def _refuse(self, m: ClientMessage, reason: str) -> None:
-        self._tell_clients('rejected_goal', f'client {m.client}: {m.topic} ({m.encoding}) '
+    def _refuse(self, m: ClientMessage, row: ClientChannel, reason: str) -> None:
+        self._tell_clients(row.rejected, f'client {m.client}: {m.topic} ({m.encoding}) '
                            f'refused: {reason}', client=m.client)
 
     def _tell_clients(self, kind: str, text: str, **values) -> None:

@@ -1,22 +1,29 @@
-"""``visualizer`` node: the arm as visualization markers, and its ``robot_description``.
+"""``visualizer`` node: the arm as visualization markers, its ``robot_description`` and
+its transforms.
 
-Thin ROS shell around :func:`arm_sim.markers.arm_markers`: ``joint_states``,
-``planner/path`` (transient local) and ``goal_pose`` in; ``markers``
-(visualization_msgs/MarkerArray) and ``robot_description`` (std_msgs/String, transient
-local, depth 1, the URDF of :mod:`arm_dynamics.urdf`) out. Markers are sent at most
-``rate`` times per wall-clock second and only when a message changed something; what they
-show depends on the messages alone.
+Thin ROS shell around :func:`arm_sim.markers.arm_markers` and :class:`arm_sim.tf.FrameTree`:
+``joint_states``, ``planner/path`` (transient local) and ``goal_pose`` in; ``markers``
+(visualization_msgs/MarkerArray), ``robot_description`` (std_msgs/String, transient
+local, depth 1, the URDF of :mod:`arm_dynamics.urdf`), ``tf`` and ``tf_static``
+(tf2_msgs/TFMessage, as robot_state_publisher publishes them from that URDF) out. Markers
+are sent at most ``rate`` times per wall-clock second and only when a message changed
+something; what they show depends on the messages alone. ``tf`` goes out once per joint
+state, stamped with it; ``tf_static`` once, at start.
 """
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point, PoseStamped
+from geometry_msgs.msg import Point, PoseStamped, TransformStamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import ColorRGBA, Header, String
+from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
 from arm_common.gate import WAIT_FOR_NODES, SubscriberGate
@@ -34,6 +41,7 @@ from arm_dynamics.models import joint_count, robot_model
 from arm_dynamics.robot import ROBOT_PARAMS
 from arm_dynamics.urdf import urdf_from_params
 from arm_sim.markers import MarkerShape, TipTrail, arm_markers
+from arm_sim.tf import FrameTree, Transform
 
 SUMMARY = '''
 Draws the arm for RViz and Foxglove. Subscribes joint_states (sensor_msgs/JointState),
@@ -46,9 +54,14 @@ Positions are the forward kinematics of the joint state. Markers go out at most 
 times per wall-clock second, and only after a message changed them; their content depends
 on the messages only. Also publishes robot_description (std_msgs/String, transient local,
 depth 1, as robot_state_publisher does): the URDF made from the robot parameters (the text
-arm-sim urdf prints). Joint states with missing joints, mismatched lengths or non-finite
-positions, and goals or paths in another frame or not finite, are dropped with a throttled
-warning and a /diagnostics entry (rejected_joint_state, rejected_goal, rejected_path).
+arm-sim urdf prints). With publish_tf, also publishes what robot_state_publisher would from
+that URDF: tf (tf2_msgs/TFMessage), for each joint state, one transform per movable joint
+(parent link -> child link: the joint's origin times the rotation about its axis by the
+position), stamped with the joint state's stamp; and tf_static (transient local), once, the
+fixed joints (link<n> -> tool0), stamped 0. Joint states with missing joints, mismatched
+lengths or non-finite positions, and goals or paths in another frame or not finite, are
+dropped with a throttled warning and a /diagnostics entry (rejected_joint_state,
+rejected_goal, rejected_path).
 '''
 
 VISUALIZER_PARAMS: tuple[ParamSpec, ...] = (
@@ -63,6 +76,10 @@ VISUALIZER_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('publish_robot_description', 'bool', True,
               'Publish robot_description (false when robot_state_publisher does)',
               read_only=True),
+    ParamSpec('publish_tf', 'bool', True,
+              'Publish tf (the movable joints, per joint state, with its stamp) and tf_static '
+              '(the fixed joints, once, transient local) from the URDF, as '
+              'robot_state_publisher does (false when it runs)', read_only=True),
     WAIT_FOR_NODES,
 )
 
@@ -71,6 +88,17 @@ MARKER_TYPES = {'line_list': Marker.LINE_LIST, 'line_strip': Marker.LINE_STRIP,
                 'sphere': Marker.SPHERE, 'sphere_list': Marker.SPHERE_LIST}
 TRAIL_MAX_POINTS = 10_000  # states kept for the trail, whatever its length
 JOINT_STATE_DEPTH = 1000  # a lockstep burst must not cost the trail states
+#: tf's queue: a lockstep burst of joint states (each its tf) must not cost the recorder
+#: transforms (tf2_ros's TransformBroadcaster keeps 100); also how many wait for the gate.
+TF_DEPTH = JOINT_STATE_DEPTH
+
+
+def tf_qos() -> QoSProfile:
+    """QoS of ``tf``, as tf2_ros's TransformBroadcaster (reliable, volatile), keeping the
+    last :data:`TF_DEPTH`."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=TF_DEPTH,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
 
 
 def _colour(rgba) -> ColorRGBA:
@@ -99,6 +127,19 @@ def marker_message(shape: MarkerShape, header: Header) -> Marker:
     return msg
 
 
+def tf_message(transforms: list[Transform], stamp: Time) -> TFMessage:
+    """tf2_msgs/TFMessage of ``transforms``, each stamped ``stamp``."""
+    out = []
+    for t in transforms:
+        msg = TransformStamped(child_frame_id=t.child)
+        msg.header.frame_id, msg.header.stamp = t.parent, stamp
+        tr, rot = msg.transform.translation, msg.transform.rotation
+        tr.x, tr.y, tr.z = t.translation
+        rot.x, rot.y, rot.z, rot.w = t.rotation
+        out.append(msg)
+    return TFMessage(transforms=out)
+
+
 def markers_message(shapes: tuple[MarkerShape, ...], header: Header) -> MarkerArray:
     """MarkerArray of ``shapes``, every marker with ``header``."""
     return MarkerArray(markers=[marker_message(s, header) for s in shapes])
@@ -115,6 +156,7 @@ class VisualizerNode(Node):
         try:
             self.arm = robot_model(robot)
             urdf = urdf_from_params(robot)
+            self.tree = FrameTree(urdf)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
         if not p['frame_id']:
@@ -130,7 +172,23 @@ class VisualizerNode(Node):
         self.changed = False  # something to show since the last markers
         self.sent = 0
         self.markers_pub = self.create_publisher(MarkerArray, 'markers', 10)
-        self.gate = SubscriberGate(self, [self.markers_pub], p['wait_for_nodes'])
+        self.publish_tf = bool(p['publish_tf'])
+        self.tf_sent = 0
+        self.tf_held: deque[TFMessage] = deque(maxlen=TF_DEPTH)  # while the gate is shut
+        gated = [self.markers_pub]
+        if self.publish_tf:
+            # Relative names: /tf and /tf_static in the root namespace, as
+            # robot_state_publisher's (the launch file remaps its /tf to tf).
+            self.tf_pub = self.create_publisher(TFMessage, 'tf', tf_qos())
+            gated.append(self.tf_pub)
+            # Latched, once, as robot_state_publisher's fixed joints. Stamp 0: tf2 keeps
+            # static transforms for all time, and a viewer that looks them up by stamp
+            # (Foxglove) finds one at or before every state.
+            self.tf_static_pub = self.create_publisher(TFMessage, 'tf_static', latched_qos())
+            static = self.tree.static_transforms()
+            if static:
+                self.tf_static_pub.publish(tf_message(static, Time()))
+        self.gate = SubscriberGate(self, gated, p['wait_for_nodes'])
         if p['publish_robot_description']:
             # Latched as robot_state_publisher does: a display started later gets it.
             self.description_pub = self.create_publisher(String, 'robot_description',
@@ -145,7 +203,8 @@ class VisualizerNode(Node):
         self.diag.set('OK', 'waiting for joint_states', markers_sent=0)
         self.create_timer(1.0 / p['rate'], self._publish, clock=steady_clock())
         self.get_logger().info(f"visualizer ready: markers in {self.frame} at up to "
-                               f"{p['rate']:g} Hz, trail {p['trail_length']:g} s")
+                               f"{p['rate']:g} Hz, trail {p['trail_length']:g} s"
+                               + (', tf and tf_static' if self.publish_tf else ''))
 
     # ------------------------------------------------------------------ callbacks
     def _on_joint_state(self, msg: JointState) -> None:
@@ -171,6 +230,14 @@ class VisualizerNode(Node):
             self.t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             self.trail.add(self.t_ns, q)
             self.changed = True
+            if self.publish_tf:
+                tf = tf_message(self.tree.transforms(dict(zip(self.joint_names, q))),
+                                msg.header.stamp)
+                if self.gate.opened and not self.tf_held:
+                    self.tf_pub.publish(tf)
+                    self.tf_sent += 1
+                else:  # sent when the gate opens (the timer), in order
+                    self.tf_held.append(tf)
         except Exception as exc:  # never die on a message
             self.diag.problem('internal_error', f'joint_states handling failed: {exc!r}',
                               'ERROR')
@@ -218,10 +285,16 @@ class VisualizerNode(Node):
 
     # ------------------------------------------------------------------ output
     def _publish(self) -> None:
-        """The wall-clock throttle: send the markers if a message changed them."""
-        if not self.changed or self.q is None:
+        """The wall-clock throttle: send the markers if a message changed them (and the
+        transforms held while the gate was shut)."""
+        if (not self.changed or self.q is None) and not self.tf_held:
             return
-        if not self.gate.ready(self.diag, 'the first markers'):
+        if not self.gate.ready(self.diag, 'the first markers and transforms'):
+            return
+        while self.tf_held:
+            self.tf_pub.publish(self.tf_held.popleft())
+            self.tf_sent += 1
+        if not self.changed or self.q is None:
             return
         self.changed = False
         try:
@@ -234,7 +307,7 @@ class VisualizerNode(Node):
         self.markers_pub.publish(markers_message(shapes, header))
         self.sent += 1
         self.diag.set('OK', 'showing the arm', markers_sent=self.sent,
-                      trail_points=len(self.trail))
+                      trail_points=len(self.trail), tf_sent=self.tf_sent)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -203,14 +203,15 @@ def _visualization(context: LaunchContext) -> list[Node]:
 
 
 def _visualizer(context: LaunchContext) -> list[Node]:
-    """The visualizer (``visualizer`` true); it publishes ``robot_description`` unless
-    robot_state_publisher does (``robot_state_publisher`` or ``rviz`` true), so the topic
-    has one publisher."""
+    """The visualizer (``visualizer`` true); it publishes ``robot_description``, ``tf`` and
+    ``tf_static`` unless robot_state_publisher does (``robot_state_publisher`` or ``rviz``
+    true), so each topic has one publisher."""
     if visualizer.perform(context) != 'true':
         return []
     rsp = 'true' in (robot_state_publisher.perform(context), rviz.perform(context))
     return [_sim_time_node('visualizer',
-                           parameters=[{'publish_robot_description': not rsp},
+                           parameters=[{'publish_robot_description': not rsp,
+                                        'publish_tf': not rsp},
                                        *_gate(context, 'visualizer')])]
 
 

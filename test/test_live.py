@@ -19,24 +19,33 @@ import pytest
 import yaml
 from conftest import statuses
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from arm_bag.msgdefs import schema_text
+from arm_bag.recorder_node import message_class
+from arm_bag.topics import KNOWN_TOPICS
 from arm_dynamics import TwoLinkArm
+from arm_dynamics.disturbance import MAX_LOAD
 from arm_sim.launcher import config_file, node_env
 from arm_sim.live import (
+    CLIENT_CHANNELS,
     FRAMES,
+    GOAL_CHANNEL,
+    PUSH_CHANNEL,
+    Stamped,
+    accepted_topic,
     arm_transforms,
     cdr_header,
     cdr_string,
-    goal_channel_refusal,
+    client_channel_refusal,
     joint_positions,
     pose_from_json,
     pose_refusal,
+    resolved_client_topics,
     stamp_refusal,
     text_refusal,
 )
@@ -111,14 +120,130 @@ def test_client_goals_json_and_refusals():
         pose_from_json('{"pose": {"position": {"x": "far"}}}')
     with pytest.raises(ValueError, match='not JSON'):
         pose_from_json(b'\x00\x01')
-    ok = goal_channel_refusal('/goal_pose', '/goal_pose', 'cdr', 'geometry_msgs/msg/PoseStamped')
-    assert ok is None
-    assert goal_channel_refusal('goal_pose', '/goal_pose', 'json',
-                                'geometry_msgs/PoseStamped') is None
-    assert 'only /goal_pose' in goal_channel_refusal('/cmd', '/goal_pose', 'cdr', '')
-    assert 'encoding' in goal_channel_refusal('/goal_pose', '/goal_pose', 'protobuf', '')
-    assert 'schema' in goal_channel_refusal('/goal_pose', '/goal_pose', 'cdr',
-                                            'geometry_msgs/msg/Pose')
+    with pytest.raises(ValueError, match='pose must be an object with position and orientation'):
+        pose_from_json('{"pose": 3}')
+    with pytest.raises(ValueError, match='a PoseStamped must be a JSON object'):
+        pose_from_json('[]')
+
+
+# ---------------------------------------------------------------------- client channels
+ACCEPTED = resolved_client_topics()
+
+
+def test_the_client_channels_are_one_table_of_goal_pose_and_simulator_push():
+    """One row per topic clients may publish: its ROS type (a suite topic's, with its
+    schema installed), what the node counts and reports, and its numeric fields."""
+    assert [(c.topic, c.type_name, c.kind, c.counter, c.rejected) for c in CLIENT_CHANNELS] == [
+        ('goal_pose', 'geometry_msgs/msg/PoseStamped', 'goal', 'goals_published',
+         'rejected_goal'),
+        ('simulator/push', 'geometry_msgs/msg/WrenchStamped', 'push', 'pushes_published',
+         'rejected_push')]
+    assert [[(v.path, v.keys, v.bound) for v in c.vectors] for c in CLIENT_CHANNELS] == [
+        [('pose.position', 'xyz', None), ('pose.orientation', 'xyzw', None)],
+        [('wrench.force', 'xyz', MAX_LOAD), ('wrench.torque', 'xyz', MAX_LOAD)]]
+    for c in CLIENT_CHANNELS:
+        assert KNOWN_TOPICS[c.topic] == c.type_name and schema_text(c.type_name)
+        assert message_class(c.type_name).__name__ == c.short_type
+    assert ACCEPTED == {'/goal_pose': 'geometry_msgs/msg/PoseStamped',
+                        '/simulator/push': 'geometry_msgs/msg/WrenchStamped'}
+    assert resolved_client_topics(lambda t: '/arm2/' + t) == {
+        '/arm2/goal_pose': 'geometry_msgs/msg/PoseStamped',
+        '/arm2/simulator/push': 'geometry_msgs/msg/WrenchStamped'}
+
+
+@pytest.mark.parametrize('cls, row', [(PoseStamped, GOAL_CHANNEL), (WrenchStamped, PUSH_CHANNEL)])
+def test_a_rows_fields_fill_and_read_its_ros_message(cls, row):
+    """What the node publishes from a JSON message is that message, field by field, and
+    survives CDR as the CDR path reads it."""
+    vectors = tuple(tuple(float(10 * i + j + 1) for j in range(len(v.keys)))
+                    for i, v in enumerate(row.vectors))
+    msg = row.fill(cls(), Stamped(3, 5, 'base_link', vectors))
+    back = deserialize_message(serialize_message(msg), cls)
+    assert (back.header.stamp.sec, back.header.stamp.nanosec, back.header.frame_id) == (
+        3, 5, 'base_link')
+    assert row.read(back) == vectors
+    assert cdr_header(serialize_message(msg)) == (3, 5, 'base_link')
+
+
+def test_a_foxglove_push_is_read_from_json():
+    """What Foxglove's Publish panel sends on /simulator/push: the rest takes the message's
+    defaults (zero stamp, empty frame, zero torque)."""
+    push = PUSH_CHANNEL.from_json('{"wrench": {"force": {"x": 0, "y": -30, "z": 0}}}')
+    assert push == Stamped(0, 0, '', ((0.0, -30.0, 0.0), (0.0, 0.0, 0.0)))
+    push = PUSH_CHANNEL.from_json(json.dumps({
+        'header': {'stamp': {'sec': 2, 'nsec': 7}, 'frame_id': 'base_link'},
+        'wrench': {'force': {'x': 1e6, 'y': -1e6}, 'torque': {'z': 0.5}}}))
+    assert push == Stamped(2, 7, 'base_link', ((1e6, -1e6, 0.0), (0.0, 0.0, 0.5)))
+    assert PUSH_CHANNEL.describe(push.vectors) == 'wrench.force (1e+06, -1e+06, 0) N'
+    assert GOAL_CHANNEL.describe(((0.5, 1.2, 0.0), (0.0, 0.0, 0.0, 1.0))) == ''
+
+
+@pytest.mark.parametrize('doc, reason', [
+    ({'wrench': {'force': {'x': 'hard'}}}, "wrench.force.x must be a finite number, got 'hard'"),
+    ({'wrench': {'force': {'y': math.inf}}}, 'wrench.force.y must be a finite number, got inf'),
+    ({'wrench': {'force': {'z': True}}}, 'wrench.force.z must be a finite number, got True'),
+    ({'wrench': {'torque': {'z': math.nan}}}, 'wrench.torque.z must be a finite number'),
+    ({'wrench': {'force': {'y': -2e6}}},
+     'wrench.force.y = -2e+06 N is too large: at most 1e+06 N in magnitude'),
+    ({'wrench': {'torque': {'x': 1e7}}},
+     'wrench.torque.x = 1e+07 N m is too large: at most 1e+06 N m in magnitude'),
+    ({'wrench': {'force': {'x': 10**400}}}, 'wrench.force.x must be a finite number'),
+    ({'wrench': 3}, 'wrench must be an object with force and torque'),
+    ({'wrench': {'force': [0, -30]}}, 'wrench.force must be an object with x, y, z'),
+    ({'header': {'stamp': {'sec': 0, 'nanosec': -1}}}, 'nanosec = -1 is outside [0, 1e9)'),
+    ({'header': {'stamp': {'sec': -5}}}, 'header.stamp is negative'),
+    ({'header': {'stamp': {'sec': 2**40}}}, 'overflows'),
+    ({'header': {'stamp': {'sec': 1.5}}}, 'header.stamp must hold integers'),
+    ({'header': {'frame_id': 'base_link\x00x'}}, 'NUL'),
+    ({'header': {'frame_id': 7}}, 'header.frame_id must be a string'),
+    ([0, -30], 'a WrenchStamped must be a JSON object'),
+])
+def test_client_json_pushes_with_a_bad_field_are_refused_naming_it(doc, reason):
+    with pytest.raises(ValueError, match=re.escape(reason)):
+        PUSH_CHANNEL.from_json(json.dumps(doc))
+
+
+def test_pushes_are_checked_as_the_cdr_path_reads_them():
+    ok = ((0.0, -30.0, 0.0), (0.0, 0.0, 0.0))
+    assert PUSH_CHANNEL.refusal(0, 0, '', ok) is None
+    assert PUSH_CHANNEL.refusal(0, 0, '', ((MAX_LOAD, -MAX_LOAD, 0.0), ok[1])) is None
+    assert 'wrench.torque.y must be a finite number, got nan' in PUSH_CHANNEL.refusal(
+        0, 0, '', (ok[0], (0.0, math.nan, 0.0)))
+    assert 'wrench.force.z = 1.5e+06 N is too large' in PUSH_CHANNEL.refusal(
+        0, 0, '', ((0.0, 0.0, 1.5e6), ok[1]))
+    assert 'NUL' in PUSH_CHANNEL.refusal(0, 0, 'a\x00b', ok)
+    assert 'negative' in PUSH_CHANNEL.refusal(-1, 0, '', ok)
+    with pytest.raises(ValueError, match='not JSON'):
+        PUSH_CHANNEL.from_json(b'\xff')
+
+
+def test_only_the_tables_topics_types_and_encodings_are_taken_from_clients():
+    for topic, encoding, schema in [
+            ('/goal_pose', 'cdr', 'geometry_msgs/msg/PoseStamped'),
+            ('goal_pose', 'json', 'geometry_msgs/PoseStamped'),
+            ('/simulator/push', 'json', 'geometry_msgs/msg/WrenchStamped'),
+            ('simulator/push', 'cdr', 'geometry_msgs/WrenchStamped'),
+            ('/simulator/push', 'json', '')]:
+        assert client_channel_refusal(topic, ACCEPTED, encoding, schema) is None, topic
+    assert accepted_topic('simulator/push', ACCEPTED) == '/simulator/push'
+    assert accepted_topic('/cmd', ACCEPTED) is None
+    assert client_channel_refusal('/cmd', ACCEPTED, 'cdr', '') == (
+        "only /goal_pose and /simulator/push can be published into ROS, not '/cmd'")
+    assert 'only /goal_pose can be' in client_channel_refusal(
+        '/push', {'/goal_pose': 'geometry_msgs/msg/PoseStamped'}, 'cdr', '')
+    assert client_channel_refusal('/simulator/push', ACCEPTED, 'protobuf', '') == (
+        "/simulator/push: encoding 'protobuf' is not accepted (accepted: cdr, json)")
+    assert client_channel_refusal('/simulator/push', ACCEPTED, 'cdr',
+                                  'geometry_msgs/msg/PoseStamped') == (
+        "/simulator/push: schema 'geometry_msgs/msg/PoseStamped' is not "
+        'geometry_msgs/msg/WrenchStamped')
+    assert 'schema' in client_channel_refusal('/goal_pose', ACCEPTED, 'cdr',
+                                              'geometry_msgs/msg/Pose')
+    # In a namespace only the resolved names are taken.
+    arm2 = resolved_client_topics(lambda t: '/arm2/' + t)
+    assert client_channel_refusal('/arm2/simulator/push', arm2, 'json', '') is None
+    assert 'only /arm2/goal_pose and /arm2/simulator/push' in client_channel_refusal(
+        '/simulator/push', arm2, 'json', '')
 
 
 def test_stamps_frame_ids_and_numbers_are_validated():

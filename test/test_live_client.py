@@ -1,6 +1,7 @@
 """A stock Foxglove client against the live node: npm's ``@foxglove/ws-protocol``
 ``FoxgloveClient`` (test/js/client.js), which offers only ``foxglove.websocket.v1``, gets
-the simulator's joint states and publishes a goal; a client offering something else is
+the simulator's joint states, publishes a goal and pushes the arm (a WrenchStamped on
+/simulator/push, as Foxglove's Publish panel sends it); a client offering something else is
 refused with the reason in the node's log."""
 
 from __future__ import annotations
@@ -15,7 +16,9 @@ import threading
 from pathlib import Path
 
 import pytest
-from geometry_msgs.msg import PoseStamped
+from conftest import statuses, values
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
@@ -93,18 +96,22 @@ async def _refused(url: str) -> tuple[int, str]:
     return err.value.response.status_code, err.value.response.body.decode()
 
 
-def test_a_stock_foxglove_client_gets_the_simulators_joint_states_and_publishes_a_goal(
+def test_a_stock_foxglove_client_gets_the_simulators_joint_states_publishes_a_goal_and_pushes(
         ros, launch, js_client):
     """The live node and the simulator (real time, 100 Hz); ``FoxgloveClient`` offering
     ``foxglove.websocket.v1`` is answered with that name, gets serverInfo and the channels,
     subscribes to /joint_states and gets states equal, field by field, to those the
     simulator published (matched by stamp: this test's own subscription sees them too);
-    its JSON goal on /goal_pose is published into ROS. A client offering other
-    subprotocols gets 400 with the reason, which the node logs."""
+    its JSON goal on /goal_pose is published into ROS, and so is its JSON push on
+    /simulator/push (a WrenchStamped with the same force, which the simulator applies and
+    the node counts). A client offering other subprotocols gets 400 with the reason, which
+    the node logs."""
     states = ros.collect(JointState, 'joint_states')
     goals = ros.collect(PoseStamped, 'goal_pose')
+    pushes = ros.collect(WrenchStamped, 'simulator/push')
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
     live = launch('live', params={'port': 0})
-    launch('simulator', params_file=CONFIG, params={'timing_mode': 'real_time'})
+    sim = launch('simulator', params_file=CONFIG, params={'timing_mode': 'real_time'})
     found = ros.wait_for(lambda: re.search(r'serving (ws://\S+)', live.output()), timeout=30,
                          what='the live node to serve')
     url = found.group(1)
@@ -160,6 +167,24 @@ def test_a_stock_foxglove_client_gets_the_simulators_joint_states_and_publishes_
         g = goals[0]
         assert (g.header.stamp.nanosec, g.header.frame_id, g.pose.position.x,
                 g.pose.position.y) == (5, 'base_link', 0.5, 1.2)
+
+        # A push, as Foxglove's Publish panel sends it on /simulator/push.
+        client.send(cmd='advertise', topic='/simulator/push', encoding='json',
+                    schemaName='geometry_msgs/msg/WrenchStamped')
+        pid = ros.wait_for(lambda: [e for e in client.of('advertised')
+                                    if e['topic'] == '/simulator/push'],
+                           what='the push advertisement')[0]['channelId']
+        push = json.dumps({'wrench': {'force': {'x': 0, 'y': -30, 'z': 0}}})
+        ros.wait_for(lambda: pushes or client.send(cmd='publish', channelId=pid, text=push),
+                     timeout=20, what='the client push published into ROS')
+        assert {(p.wrench.force.x, p.wrench.force.y, p.wrench.force.z, p.wrench.torque.z,
+                 p.header.frame_id) for p in pushes} == {(0.0, -30.0, 0.0, 0.0, '')}
+        ros.wait_for(lambda: 'live push [0.0, -30.0] N' in sim.output(), timeout=10,
+                     what='the simulator to take the push')
+        assert 'push published on /simulator/push: wrench.force (0, -30, 0) N' in live.output()
+        ros.wait_for(lambda: any(int(values(s).get('pushes_published', 0)) >= 1
+                                 for s in statuses(diags, '/live', 'summary')),
+                     timeout=10, what='pushes_published on /diagnostics')
         assert not client.of('error'), client.of('error')
     finally:
         client.close()

@@ -125,8 +125,8 @@ async def _session(bridge: Bridge, subprotocols: list[str]) -> str:
             await ws.send(struct.pack('<BI', 1, 4) + goal)
             items = [i for i in bridge.poll() if isinstance(i, ClientMessage)]
             if items:
-                assert (items[0].topic, items[0].encoding, items[0].data) == (
-                    '/goal_pose', 'json', goal)
+                assert (items[0].topic, items[0].encoding, items[0].data,
+                        items[0].ros_topic) == ('/goal_pose', 'json', goal, '/goal_pose')
                 break
             await asyncio.sleep(0.02)  # let the SDK's thread take it; bounded by the loop
         else:
@@ -142,6 +142,36 @@ async def _session(bridge: Bridge, subprotocols: list[str]) -> str:
 def test_both_names_get_the_protocol(bridge, offered, answered):
     bridge.add_ros_channel('/joint_states', 'sensor_msgs/msg/JointState')
     assert asyncio.run(asyncio.wait_for(_session(bridge, offered), 60)) == answered
+
+
+async def _publish_push(bridge: Bridge) -> tuple[list[str], ClientMessage]:
+    """Advertise /cmd (refused) and simulator/push (no leading slash: accepted); publish a
+    push. Returns the refusals and the push as the bridge hands them to the node."""
+    async with websockets.connect(bridge.url, subprotocols=[LEGACY_SUBPROTOCOL]) as ws:
+        await ws.send(json.dumps({'op': 'advertise', 'channels': [
+            {'id': 1, 'topic': '/cmd', 'encoding': 'json', 'schemaName': ''},
+            {'id': 2, 'topic': 'simulator/push', 'encoding': 'json',
+             'schemaName': 'geometry_msgs/msg/WrenchStamped'}]}))
+        push = b'{"wrench": {"force": {"x": 0, "y": -30, "z": 0}}}'
+        refusals: list[str] = []
+        for _ in range(200):  # the advertisement is taken asynchronously: send until taken
+            await ws.send(struct.pack('<BI', 1, 2) + push)
+            items = bridge.poll()
+            refusals += [i for i in items if isinstance(i, str)]
+            pushes = [i for i in items if isinstance(i, ClientMessage)]
+            if pushes:
+                return refusals, pushes[0]
+            await asyncio.sleep(0.02)  # let the SDK's thread take it; bounded by the loop
+        pytest.fail('the client push never reached the bridge')
+
+
+def test_a_push_channel_is_taken_and_other_topics_are_refused(bridge):
+    refusals, push = asyncio.run(asyncio.wait_for(_publish_push(bridge), 60))
+    assert (push.topic, push.encoding, push.ros_topic) == ('simulator/push', 'json',
+                                                           '/simulator/push')
+    assert json.loads(push.data)['wrench']['force']['y'] == -30
+    assert len(refusals) == 1 and refusals[0].endswith(
+        "only /goal_pose and /simulator/push can be published into ROS, not '/cmd'"), refusals
 
 
 async def _refused(url: str, subprotocols: list[str] | None):

@@ -35,6 +35,7 @@ ROSDEP_KEYS = {
     'std_msgs': 'std_msgs',
     'std_srvs': 'std_srvs',
     'trajectory_msgs': 'trajectory_msgs',
+    'tf2_msgs': 'tf2_msgs',
     'visualization_msgs': 'visualization_msgs',
     'ament_index_python': 'ament_index_python',
     'launch': 'launch',
@@ -63,7 +64,7 @@ ROSDISTRO_KEYS = {
     'rclpy', 'builtin_interfaces', 'std_msgs', 'std_srvs', 'sensor_msgs', 'geometry_msgs',
     'trajectory_msgs', 'visualization_msgs', 'nav_msgs', 'diagnostic_msgs',
     'rosgraph_msgs', 'rcl_interfaces', 'ament_index_python', 'launch', 'launch_ros',
-    'robot_state_publisher', 'rviz2', 'pinocchio',
+    'robot_state_publisher', 'rviz2', 'pinocchio', 'tf2_msgs', 'control_msgs',
 }
 
 #: Optional imports (a setup.py extra, imported only when asked for): no run dependency.

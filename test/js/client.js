@@ -8,6 +8,8 @@
 // JSON lines on stdin:
 //   {"cmd": "subscribe", "topic": "/joint_states"}
 //   {"cmd": "advertise", "topic": "/goal_pose", "encoding": "json", "schemaName": "..."}
+//     (any topic: the test advertises /goal_pose and /simulator/push; the reply
+//     {"event": "advertised", "topic": ..., "channelId": N} names the channel to publish on)
 //   {"cmd": "publish", "channelId": 1, "text": "{...}"}   (clientPublish, UTF-8 payload)
 //   {"cmd": "close"}
 "use strict";
