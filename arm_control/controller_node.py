@@ -11,13 +11,19 @@ trajectory change) cannot change the run.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
+from control_msgs.action import FollowJointTrajectory
+from control_msgs.msg import JointTrajectoryControllerState
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action.server import ServerGoalHandle
 from rclpy.node import Node
+from rclpy.task import Future
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
-from trajectory_msgs.msg import JointTrajectory
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from arm_common.gate import WAIT_FOR_NODES, SubscriberGate
 from arm_common.node import (
@@ -32,10 +38,16 @@ from arm_common.node import (
     steady_clock,
 )
 from arm_common.params import ParamSpec
-from arm_control.core import ControllerCore
+from arm_control import follow
+from arm_control.core import ControllerCore, Step
 from arm_control.laws import GAINS, LAW_TABLE, LAWS, ControlLaw, Gains
 from arm_control.model_params import CONTROL_MODEL_PARAMS, controller_model
-from arm_control.trajectory import StaleTrajectoryError, TrajectoryError, TrajectoryPoint
+from arm_control.trajectory import (
+    StaleTrajectoryError,
+    Trajectory,
+    TrajectoryError,
+    TrajectoryPoint,
+)
 from arm_dynamics.limits import JointLimits
 from arm_dynamics.models import joint_count
 from arm_dynamics.robot import ROBOT_PARAMS
@@ -62,6 +74,17 @@ wall time without one: a new process may take a second to be matched with the
 simulator). When simulated time goes back or jumps (a restarted simulator, a reset, a bag
 replay) the trajectory is dropped, the measured position held and the jump reported; a
 restarted controller holds where the arm is.
+
+Also serves arm_controller/follow_joint_trajectory (control_msgs/action/FollowJointTrajectory,
+what MoveIt drives), as joint_trajectory_controller does: a goal's trajectory replaces the
+current one; refused goals end at once with their result code (INVALID_JOINTS,
+INVALID_GOAL, OLD_HEADER_TIMESTAMP) and the reason; path and goal tolerances (the goal's,
+or where it leaves them 0 the constraints.* parameters) are checked on each joint state;
+feedback (desired, actual, error) goes out with every command; a cancel, a violated
+tolerance or a time jump holds the arm where it is; a trajectory on the topic preempts a
+goal (aborted, with the reason) and a goal replaces a topic trajectory. Publishes
+arm_controller/controller_state (control_msgs/msg/JointTrajectoryControllerState:
+reference, feedback, error, output effort) with every command.
 '''
 
 EARLY_WAIT = 5.0  # s (wall): a trajectory received before any joint state waits this long
@@ -88,6 +111,28 @@ CONTROL_PARAMS: tuple[ParamSpec, ...] = (
               'A forward step of simulated time between two joint states longer than this '
               'is a time jump: the trajectory is dropped and the measured position held',
               's', minimum=0.0, strict_min=True, maximum=1e6, read_only=True),
+    # FollowJointTrajectory defaults, as joint_trajectory_controller's constraints.* (there
+    # constraints.<joint>.trajectory / .goal; here one list per kind, in joint order).
+    ParamSpec('constraints.trajectory', 'doubles', [0.0, 0.0],
+              'FollowJointTrajectory path tolerance: the largest |desired - measured| '
+              "position of each joint while a goal's trajectory runs, beyond which the "
+              'goal aborts (PATH_TOLERANCE_VIOLATED) and the arm holds; 0 = no check; used '
+              "where a goal's path_tolerance leaves it 0",
+              'rad', minimum=0.0, maximum=1e6, per_joint=True),
+    ParamSpec('constraints.goal', 'doubles', [0.0, 0.0],
+              'FollowJointTrajectory goal tolerance: the largest |final position - '
+              'measured| of each joint for a goal to succeed once its trajectory has '
+              "ended; 0 = no check; used where a goal's goal_tolerance leaves it 0",
+              'rad', minimum=0.0, maximum=1e6, per_joint=True),
+    ParamSpec('constraints.stopped_velocity_tolerance', 'double', 0.01,
+              'FollowJointTrajectory: the largest joint speed at which a goal counts as '
+              'reached (the goal velocity tolerance of each joint a goal leaves 0); '
+              '0 = no check', 'rad/s', minimum=0.0, maximum=1e6),
+    ParamSpec('constraints.goal_time', 'double', 0.0,
+              "FollowJointTrajectory: how long after its trajectory's end a goal may take "
+              'to come within the goal tolerance before it aborts '
+              "(GOAL_TOLERANCE_VIOLATED) and the arm holds; 0 = no limit; used when a goal's "
+              'goal_time_tolerance is 0', 's', minimum=0.0, maximum=1e6),
 ) + CONTROL_MODEL_PARAMS + (WAIT_FOR_NODES,)
 
 
@@ -97,6 +142,44 @@ def _stamp(msg) -> float:
 
 def _stamp_ns(msg) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def _seconds(d) -> float:
+    """A builtin_interfaces Duration (or Time) in seconds."""
+    return d.sec + d.nanosec * 1e-9
+
+
+def _points(msg: JointTrajectory) -> list[TrajectoryPoint]:
+    return [TrajectoryPoint(_seconds(p.time_from_start), p.positions, p.velocities,
+                            p.accelerations) for p in msg.points]
+
+
+def _tolerances(tols) -> list[follow.JointTolerance]:
+    return [follow.JointTolerance(t.name, t.position, t.velocity, t.acceleration)
+            for t in tols]
+
+
+def _point(positions: np.ndarray, velocities: np.ndarray,
+           accelerations: np.ndarray | None = None) -> JointTrajectoryPoint:
+    point = JointTrajectoryPoint(positions=positions.tolist(),
+                                 velocities=velocities.tolist())
+    if accelerations is not None:
+        point.accelerations = accelerations.tolist()
+    return point
+
+
+@dataclass
+class _Goal:
+    """The FollowJointTrajectory goal being executed."""
+
+    handle: ServerGoalHandle
+    done: Future  # set to (transition, follow.Outcome) when it ends
+    monitor: follow.GoalMonitor
+    trajectory: Trajectory  # its trajectory (the reference once it started)
+    label: str  # short goal id for reports
+
+
+_TRANSITION = {'succeed': 'succeed', 'abort': 'abort', 'cancel': 'canceled'}
 
 
 def gains_from(p: dict) -> Gains:
@@ -134,6 +217,21 @@ class ControllerNode(Node):
         self.create_subscription(JointState, 'joint_states', self._on_state, 10)
         self.create_subscription(JointTrajectory, 'arm_controller/joint_trajectory',
                                  self._on_trajectory, 10)
+        self.state_pub = self.create_publisher(JointTrajectoryControllerState,
+                                               'arm_controller/controller_state',
+                                               STREAM_DEPTH)
+        self.goal: _Goal | None = None
+        self.follow_server: ActionServer | None = None
+        # Goals are checked and answered in _control: a subclass that computes its own
+        # updates (check_reference) executes none, so it does not offer the action.
+        if type(self)._control is ControllerNode._control:
+            # Every goal is accepted and answered with its result: a ROS 2 goal response
+            # carries no code or reason, so a refused goal ends at once (aborted) with them.
+            self.follow_server = ActionServer(
+                self, FollowJointTrajectory, 'arm_controller/follow_joint_trajectory',
+                execute_callback=self._execute_goal,
+                goal_callback=lambda _request: GoalResponse.ACCEPT,
+                cancel_callback=self._on_cancel)
         self.diag = Diagnostics(self, sim_time=lambda: self.core.last_time)
         self.latest: tuple[float, np.ndarray, np.ndarray] | None = None
         self.latest_wall = 0.0
@@ -176,6 +274,12 @@ class ControllerNode(Node):
             law.law = self.params['law']
             law.reset()
         self.get_logger().info(f'parameters changed: {changed}')
+
+    def destroy_node(self) -> None:
+        if self.follow_server is not None:  # not among the entities destroy_node frees
+            self.follow_server.destroy()
+            self.follow_server = None
+        super().destroy_node()
 
     # ------------------------------------------------------------------ input
     def _on_state(self, msg: JointState) -> None:
@@ -239,11 +343,9 @@ class ControllerNode(Node):
                          'executed as before', _stamp(msg))
             return
         start = _stamp(msg) or t_now
-        points = [TrajectoryPoint(p.time_from_start.sec + p.time_from_start.nanosec * 1e-9,
-                                  p.positions, p.velocities, p.accelerations)
-                  for p in msg.points]
         try:
-            traj = self.core.set_trajectory(msg.joint_names, points, start, q, qd, now=t_now)
+            traj = self.core.set_trajectory(msg.joint_names, _points(msg), start, q, qd,
+                                            now=t_now)
         except TrajectoryError as exc:
             self._refuse(msg, f'{exc}; keeping the current reference', start_time=start,
                          stale=isinstance(exc, StaleTrajectoryError))
@@ -254,6 +356,96 @@ class ControllerNode(Node):
                         duration=f'{traj.duration:.9f}', points=len(msg.points))
         self._status(msg, DiagnosticStatus.OK, f'accepted: {text}', start)
         self.active_msg = msg
+        if self.goal is not None:  # a topic trajectory preempts an action goal: it ends
+            self._finish_goal(follow.Outcome(
+                follow.INVALID_GOAL, f'preempted by a trajectory on '
+                f'arm_controller/joint_trajectory: {text}'), 'abort')
+
+    # ------------------------------------------------------------------ action
+    async def _execute_goal(self, handle: ServerGoalHandle):
+        """A goal from acceptance to result: started (or refused) at once, then awaited
+        without blocking the executor; _control, a cancel or a preempting trajectory ends
+        it (:meth:`_finish_goal`)."""
+        started = self._start_goal(handle)
+        if isinstance(started, follow.Outcome):
+            transition, outcome = 'abort', started
+        else:
+            transition, outcome = await started
+        if transition == 'cancel' and not handle.is_cancel_requested:
+            transition = 'abort'  # (cannot happen: a cancel ends only the goal it names)
+        getattr(handle, _TRANSITION[transition])()
+        return FollowJointTrajectory.Result(error_code=outcome.code,
+                                            error_string=outcome.text)
+
+    def _start_goal(self, handle: ServerGoalHandle) -> follow.Outcome | Future:
+        """Make a goal's trajectory the reference (preempting the goal or topic trajectory
+        in progress); returns the future of its end, or the outcome of a refused goal."""
+        goal = handle.request
+        label = bytes(handle.goal_id.uuid).hex()[:8]
+        traj_msg = goal.trajectory
+        try:
+            if self.latest is None:
+                raise follow.GoalError(follow.INVALID_GOAL, 'no joint state received yet: '
+                                       'the start of the motion is unknown')
+            t_now, q, qd = self.latest
+            p = self.params
+            defaults = follow.default_tolerances(
+                p['constraints.trajectory'], p['constraints.goal'], p['constraints.goal_time'],
+                p['constraints.stopped_velocity_tolerance'])
+            accepted = follow.accept_goal(
+                self.core, traj_msg.joint_names, _points(traj_msg), _stamp(traj_msg), t_now,
+                q, qd, defaults, path=_tolerances(goal.path_tolerance),
+                goal=_tolerances(goal.goal_tolerance),
+                goal_time=_seconds(goal.goal_time_tolerance),
+                multi_dof_joints=list(goal.multi_dof_trajectory.joint_names))
+        except follow.GoalError as exc:
+            name = follow.CODE_NAMES[exc.code]
+            self.diag.problem('rejected_goal', f'goal {label} refused ({name}): {exc}; '
+                              'keeping the current reference', code=name)
+            return follow.Outcome(exc.code, str(exc))
+        if self.goal is not None:
+            self._finish_goal(follow.Outcome(follow.INVALID_GOAL,
+                                             f'preempted by goal {label}'), 'abort')
+        self.active_msg = None  # a topic trajectory in progress is replaced too
+        traj, start = accepted.trajectory, accepted.start
+        monitor = follow.GoalMonitor(self.core.joint_names, accepted.tolerances, start,
+                                     traj.duration)
+        self.goal = _Goal(handle, Future(), monitor, traj, label)
+        text = (f'goal {label}: {len(traj_msg.points)} point(s) over {traj.duration:.3f} s '
+                f'from t={start:.3f} s')
+        self.get_logger().info(f'new {text}')
+        self.diag.event('goal_accepted', text, start_time=f'{start:.9f}',
+                        duration=f'{traj.duration:.9f}', points=len(traj_msg.points))
+        return self.goal.done
+
+    def _on_cancel(self, handle: ServerGoalHandle) -> CancelResponse:
+        """Cancel the goal in progress: the arm holds the last measured position."""
+        goal = self.goal
+        if goal is None or goal.handle is not handle:
+            return CancelResponse.REJECT  # ended already (or never started)
+        last = self.core.last or self.latest
+        assert last is not None  # a goal starts only once a state came
+        t, q, qd = last
+        self.core.hold(t, q, qd)
+        self._finish_goal(follow.Outcome(
+            follow.SUCCESSFUL, f'canceled at t={t:.3f} s: holding {q.round(6).tolist()} rad'),
+            'cancel')
+        return CancelResponse.ACCEPT
+
+    def _finish_goal(self, outcome: follow.Outcome, transition: str) -> None:
+        """End the goal in progress (its execute coroutine sends the result)."""
+        goal, self.goal = self.goal, None
+        assert goal is not None
+        kind = {'succeed': 'goal_succeeded', 'abort': 'goal_aborted',
+                'cancel': 'goal_canceled'}[transition]
+        name = follow.CODE_NAMES[outcome.code]
+        text = f'goal {goal.label} {kind[5:]} ({name}): {outcome.text}'
+        if transition == 'abort':
+            self.diag.problem(kind, text, code=name)
+        else:
+            self.get_logger().info(text)
+            self.diag.event(kind, text, code=name)
+        goal.done.set_result((transition, outcome))
 
     def _status(self, msg: JointTrajectory, level: bytes, text: str,
                 start: float | None, **values) -> None:
@@ -325,6 +517,48 @@ class ControllerNode(Node):
             self.diag.problem('saturation', f'torque saturated at the effort limits on '
                               f'{joints} (wanted {cmd.raw.round(2).tolist()} N m)', 'WARN',
                               joints=joints, wanted=cmd.raw.tolist())
+        self._state_and_goal(step, t, q, qd, ref)
+
+    def _state_and_goal(self, step: Step, t: float, q: np.ndarray, qd: np.ndarray,
+                        ref: JointState) -> None:
+        """controller_state, and the goal in progress (feedback, tolerances): built only
+        for someone (about 40 us a period)."""
+        watched = self.state_pub.get_subscription_count() > 0
+        if not (watched or self.goal is not None):
+            return
+        desired = _point(step.q_des, step.qd_des, step.qdd_des)
+        actual = _point(q, qd)
+        error = _point(step.q_des - q, step.qd_des - qd)
+        if watched:
+            self.state_pub.publish(JointTrajectoryControllerState(
+                header=ref.header, joint_names=ref.name, reference=desired,
+                feedback=actual, error=error, output=JointTrajectoryPoint(effort=ref.effort),
+                speed_scaling_factor=1.0))
+        if self.goal is not None:
+            self._follow(step, t, q, qd, FollowJointTrajectory.Feedback(
+                header=ref.header, joint_names=ref.name, desired=desired, actual=actual,
+                error=error))
+
+    def _follow(self, step: Step, t: float, q: np.ndarray, qd: np.ndarray,
+                feedback: FollowJointTrajectory.Feedback) -> None:
+        """The goal in progress at the state (t, q, qd) its command ``step`` answered:
+        feedback, then its tolerances checked once its trajectory is the reference."""
+        goal = self.goal
+        assert goal is not None
+        if step.jump:
+            self._finish_goal(follow.Outcome(
+                follow.INVALID_GOAL, f'dropped: {step.jump}; holding the measured position '
+                f'{q.round(6).tolist()} rad'), 'abort')
+            return
+        goal.handle.publish_feedback(feedback)
+        if self.core.trajectory is not goal.trajectory:
+            return  # it starts at a later state: the previous reference still answers
+        outcome = goal.monitor.check(t, q, qd, step.q_des, step.qd_des)
+        if outcome is None:
+            return
+        if not outcome.succeeded:  # as JTC: an aborted goal leaves the arm held where it is
+            self.core.hold(t, q, qd)
+        self._finish_goal(outcome, 'succeed' if outcome.succeeded else 'abort')
 
     def _watch(self) -> None:
         now = time.monotonic()
@@ -346,7 +580,8 @@ class ControllerNode(Node):
                       trajectories_accepted=self.core.trajectories_accepted,
                       holding_start=self.core.holding_start,
                       saturated_ticks=self.saturations, resent_answers=self.resent,
-                      time_jumps=self.core.jumps)
+                      time_jumps=self.core.jumps,
+                      goal='' if self.goal is None else self.goal.label)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -25,6 +25,11 @@ class TrajectoryError(ValueError):
     """A trajectory that must not replace the current reference; the message says why."""
 
 
+class JointNamesError(TrajectoryError):
+    """A trajectory whose ``joint_names`` are not this controller's joints (unknown, missing
+    or repeated names)."""
+
+
 class StaleTrajectoryError(TrajectoryError):
     """A trajectory that ends before the current simulated time (planned from a state the
     simulation has since left behind: planning it again from the latest state helps)."""
@@ -62,21 +67,21 @@ def validate_trajectory(joint_names: Sequence[str], points: Sequence[TrajectoryP
     Raises
     ------
     TrajectoryError
-        Unknown, missing or repeated joint names; no points; times negative or not
-        strictly increasing; array lengths that do not match the joints; velocities or
-        accelerations given for some points only; accelerations without velocities;
-        non-finite values.
+        Unknown, missing or repeated joint names (:class:`JointNamesError`); no points;
+        times negative or not strictly increasing; array lengths that do not match the
+        joints; velocities or accelerations given for some points only; accelerations
+        without velocities; non-finite values.
     """
     names = list(joint_names)
     unknown = sorted(set(names) - set(expected))
     if unknown:
-        raise TrajectoryError(f'unknown joint names {unknown}; this controller has '
+        raise JointNamesError(f'unknown joint names {unknown}; this controller has '
                               f'{list(expected)}')
     missing = [j for j in expected if j not in names]
     if missing:
-        raise TrajectoryError(f'joints {missing} missing from joint_names {names}')
+        raise JointNamesError(f'joints {missing} missing from joint_names {names}')
     if len(set(names)) != len(names):
-        raise TrajectoryError(f'joint_names has repeats: {names}')
+        raise JointNamesError(f'joint_names has repeats: {names}')
     if not points:
         raise TrajectoryError('trajectory has no points')
     order = [names.index(j) for j in expected]

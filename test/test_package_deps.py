@@ -36,6 +36,7 @@ ROSDEP_KEYS = {
     'std_srvs': 'std_srvs',
     'trajectory_msgs': 'trajectory_msgs',
     'tf2_msgs': 'tf2_msgs',
+    'control_msgs': 'control_msgs',
     'visualization_msgs': 'visualization_msgs',
     'ament_index_python': 'ament_index_python',
     'launch': 'launch',
