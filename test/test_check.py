@@ -1,6 +1,8 @@
 """``arm-sim check``: suites, grading output, the CLI's usage errors, the pytest plugin's
 light import, and (process tier) the check run against the example controller (passes),
-a sign-flipped copy of it (fails: runaway) and arm_sim's own controller (passes)."""
+a sign-flipped copy of it (fails: runaway), arm_sim's own controller (passes), the bad
+controllers of test/check_controllers/bad.py (each scenario fails with its reason, the
+next still runs, nothing is left running) and the example's own plugin test."""
 
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from arm_sim.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / 'examples' / 'arm_check_example' / 'arm_check_example' / 'controller.py'
+BAD = ROOT / 'test' / 'check_controllers' / 'bad.py'
 LINE = {'name': 'l', 'start_tip': [0.5, 1.2],
         'goals': [{'tip': [1.4, 0.2], 'mode': 'straight_line', 'duration': 0.8}],
         'thresholds': {'line_deviation': 0.01}}
@@ -117,6 +120,23 @@ def test_the_pytest_plugin_is_registered_and_imports_light():
     assert out.stdout.strip() == '[]', out.stderr
 
 
+def test_a_controller_that_exits_has_what_it_left_in_its_group_stopped(tmp_path):
+    """A script that starts its controller in the background and exits (or a controller
+    that crashes leaving a child): stopping it stops the whole process group, SIGKILL
+    for what ignores SIGINT (a background job of sh does)."""
+    from arm_sim.check.harness import ControllerProcess, group_running
+
+    log = tmp_path / 'ctl.log'
+    ctl = ControllerProcess(['sh', '-c', f'"{sys.executable}" "{BAD}" orphan & echo $!; '
+                             'exit 3'], 0, log, 'x')
+    assert ctl.proc.wait(30) == 3
+    assert group_running(ctl.proc.pid)  # the orphan, in the group
+    assert int(log.read_text()) in _ours_running(str(BAD))  # (the check below can see it)
+    assert ctl.stop(timeout=1.0) == 3
+    assert not group_running(ctl.proc.pid)
+    assert ctl.stop() == 3  # once only
+
+
 def _check(tmp_path: Path, name: str, *args: str) -> tuple[subprocess.CompletedProcess,
                                                             dict, ET.Element]:
     report, xml = tmp_path / name, tmp_path / f'{name}.xml'
@@ -166,3 +186,89 @@ def test_check_grades_the_example_its_sign_flipped_copy_and_arm_sims_controller(
                          '--ros-args', '--params-file', str(ROOT / 'config' / 'arm.yaml'))
     assert own.returncode == 0, own.stdout + own.stderr
     assert '2 of 2 scenarios passed' in own.stdout
+
+
+#: A scenario per behaviour of bad.py (``bad.py scenario`` takes its behaviour from the
+#: scenario's name, $ARM_SIM_CHECK_SCENARIO): a short move, budgets short where the
+#: behaviour waits for one, and the reason each must fail with.
+BAD_SUITE = {
+    'name': 'bad_controllers',
+    'defaults': {'settle': 0.3, 'budget': 30.0, 'thresholds': {'final_error': 0.003}},
+    'scenarios': [{'name': name, 'start_tip': [0.5, 1.2], 'goals': [{'tip': [0.55, 1.15]}],
+                   **extra} for name, extra in [
+        ('silent', {'budget': 2.0}), ('nan', {}), ('wrong_length', {}), ('crash', {}),
+        ('slow', {'budget': 3.0}), ('good', {})]]}
+BAD_REASONS = {
+    'silent': ['no commands on effort_controller/commands within the wall-clock budget '
+               'of 2 s'],
+    'nan': ['bad command: command 1 (at simulated t = 0.00 s) is not finite: [nan, nan]'],
+    'wrong_length': ['bad command: command 1 (at simulated t = 0.00 s) has 3 values for '
+                     'the 2 joints of joint_states'],
+    'crash': ['the controller exited with code 1 at simulated t = 0.00 s', 'on purpose'],
+    'slow': ['too slow: simulated time reached t = ', 'within the wall-clock budget of 3 s'],
+}
+
+
+def _ours_running(words: str) -> list[int]:
+    """PIDs of processes of this test session whose command line holds ``words``."""
+    from conftest import ours, proc_dirs
+
+    found = []
+    for proc in proc_dirs():
+        try:
+            line = (proc / 'cmdline').read_bytes().replace(b'\0', b' ').decode(
+                errors='replace')
+        except OSError:
+            continue
+        if words in line and ours(proc):
+            found.append(int(proc.name))
+    return found
+
+
+@pytest.mark.process
+@pytest.mark.timeout(400)
+def test_bad_controllers_fail_their_scenario_with_the_reason_and_leave_nothing(tmp_path):
+    import yaml
+    from conftest import node_processes
+
+    suite = tmp_path / 'bad.yaml'
+    suite.write_text(yaml.safe_dump(BAD_SUITE, sort_keys=False))
+    before = node_processes()
+    res, doc, xml = _check(tmp_path, 'bad', '--suite', str(suite), '--', sys.executable,
+                           str(BAD), 'scenario')
+    out = res.stdout + res.stderr
+    assert res.returncode == 1, out
+    # Every scenario ran, in order, each on its own: a failure never stops the next one.
+    assert [s['name'] for s in doc['scenarios']] == [s['name'] for s in BAD_SUITE['scenarios']]
+    for s in doc['scenarios'][:-1]:
+        assert not s['passed'] and not s['metrics'], s
+        for words in BAD_REASONS[s['name']]:
+            assert words in s['reason'], (s['name'], s['reason'])
+    failures = {c.get('name'): c.find('failure') for c in xml.iter('testcase')}
+    assert all(failures[n] is not None and failures[n].get('message') ==
+               next(s['reason'] for s in doc['scenarios'] if s['name'] == n)
+               for n in BAD_REASONS)
+    # After them all, the example controller passes: the plant and the suite were reset.
+    good = doc['scenarios'][-1]
+    assert good['passed'] and good['reason'] is None and failures['good'] is None, good
+    assert 'nodes did not stop cleanly' not in out, out
+    # Nothing is left running: the suite's nodes, the bad controllers, and the child the
+    # crashing one left in its process group (killed with the group at the scenario's end).
+    assert node_processes() - before == set()
+    assert _ours_running(str(BAD)) == []
+    log = (tmp_path / 'bad' / 'crash' / 'logs' / 'your_controller.log').read_text()
+    pid = int(log.split('left a child running, pid ')[1].split()[0])
+    assert pid not in _ours_running('orphan')
+
+
+@pytest.mark.process
+@pytest.mark.timeout(300)
+def test_the_examples_plugin_test_passes(tmp_path):
+    """The example package's own test (the ``arm_check`` fixture), as its user runs it
+    from the package's directory: the cheapest of its tests, the fast line."""
+    example = ROOT / 'examples' / 'arm_check_example'
+    res = subprocess.run([sys.executable, '-m', 'pytest', 'test', '-k', 'fast_line', '-q',
+                          '-p', 'no:cacheprovider', '--basetemp', str(tmp_path / 'pytest')],
+                         cwd=example, capture_output=True, text=True, timeout=240)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert '1 passed, 1 deselected' in res.stdout, res.stdout

@@ -15,9 +15,10 @@ DESCRIPTION = """\
 Grade any controller over its ROS topics. For each scenario of the suite, start the
 simulator (lockstep), planner, recorder, visualizer and the harness's reference stream on a
 private ROS domain (localhost-only discovery), start your controller with CMD in that
-environment (ROS_DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), send the goals at
-exact simulated times, stop everything and grade the recorded run: final error [mm], line
-deviation [mm], settling time [s], peak torque [N m], saturation [%], push response.
+environment (ROS_DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST,
+ARM_SIM_CHECK_SCENARIO=<scenario>), send the goals at exact simulated times, stop
+everything and grade the recorded run: final error [mm], line deviation [mm], settling
+time [s], peak torque [N m], saturation [%], push response.
 Each scenario runs on fresh nodes, your controller restarted too. Without "-- CMD" it
 waits for a controller you start by hand (it prints the domain and the topics; it must
 then handle simulated time starting again at 0 for each scenario).

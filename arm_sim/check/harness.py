@@ -12,7 +12,10 @@ next, and the sensors and pushes (read-only simulator parameters) differ per sce
 A controller that does not do its job never hangs the check: no command, a command with
 NaN or the wrong number of joints, a controller that exits, a runaway (the simulator's
 ``runaway``/``diverged`` fault on /diagnostics) or a scenario over its wall-clock
-``budget`` ends the scenario at once with that reason.
+``budget`` ends the scenario at once with that reason. At the scenario's end the
+controller's whole process group is stopped, also when the command itself has exited (a
+child it left must not answer the next scenario); the command sees the scenario's name in
+``ARM_SIM_CHECK_SCENARIO``.
 
 Built from the demo's pieces (:class:`arm_sim.demo.Demo`: starting the nodes behind the
 recorder's gate, the recorder drain, the pause and refusal checks) and
@@ -47,6 +50,8 @@ REFERENCE_REMAPS = {'__node': 'check_reference',
                     'effort_controller/commands': 'check/unused'}
 START_WAIT = 60.0  # s (wall): the suite's own nodes to start and match
 FAULTS = ('runaway', 'diverged')
+#: The scenario's name, in the environment of the controller the harness starts.
+SCENARIO_ENV = 'ARM_SIM_CHECK_SCENARIO'
 
 
 class ScenarioFailed(Exception):
@@ -55,41 +60,81 @@ class ScenarioFailed(Exception):
 
 class ControllerProcess:
     """The user's controller: any command, in a session of its own (a ``ros2 run`` or a
-    shell script and its children are stopped together), with the run's ROS domain and
-    localhost-only discovery in its environment, its output in ``log_path``."""
+    shell script and its children are stopped together), with the run's ROS domain,
+    localhost-only discovery and the scenario's name (``ARM_SIM_CHECK_SCENARIO``) in its
+    environment, its output in ``log_path``."""
 
     name = 'your controller'
 
-    def __init__(self, command: Sequence[str], domain_id: int, log_path: Path) -> None:
+    def __init__(self, command: Sequence[str], domain_id: int, log_path: Path,
+                 scenario: str = '') -> None:
         self.log_path = log_path
         env = node_env(domain_id)
         env[PARENT_ENV] = str(os.getpid())  # honoured by arm_sim nodes (harmless otherwise)
+        env[SCENARIO_ENV] = scenario
         with open(log_path, 'wb') as out:
             self.proc = subprocess.Popen(list(command), env=env, stdout=out,
                                          stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                          start_new_session=True)
+        self.stopped = False
 
     def alive(self) -> bool:
         return self.proc.poll() is None
 
     def stop(self, timeout: float = 5.0) -> int:
-        """SIGINT to its process group, then SIGKILL after ``timeout`` s."""
+        """SIGINT to its process group, then SIGKILL after ``timeout`` s; the exit code of
+        the command. The whole group, also when the command itself has exited already (it
+        crashed, or a script started its controller in the background and returned): what
+        it left running must not answer the next scenario's simulator. Once only."""
+        if self.stopped:
+            return self.proc.returncode
         for sig in (signal.SIGINT, signal.SIGKILL):
             try:
                 os.killpg(self.proc.pid, sig)
             except ProcessLookupError:
+                break  # the group is empty
+            if self._wait_group(timeout):
                 break
-            try:
-                self.proc.wait(timeout)
-                break
-            except subprocess.TimeoutExpired:
-                continue
         if self.proc.poll() is None:
             self.proc.wait()
+        self.stopped = True
         return self.proc.returncode
+
+    def _wait_group(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` s until every process of the group has exited."""
+        end = time.monotonic() + timeout
+        while True:
+            self.proc.poll()  # reap the command itself (its children: their new parent)
+            if not group_running(self.proc.pid):
+                return True
+            if time.monotonic() > end:
+                return False
+            time.sleep(0.02)
 
     def output(self) -> str:
         return self.log_path.read_text(errors='replace')
+
+
+def group_running(pgid: int) -> bool:
+    """Whether a process of the process group ``pgid`` still runs (a zombie does not: an
+    orphan's is reaped by whoever adopted it, maybe late)."""
+    try:
+        os.killpg(pgid, 0)
+    except (ProcessLookupError, PermissionError):
+        return False
+    try:
+        procs = [p for p in os.listdir('/proc') if p.isdigit()]
+    except OSError:  # no /proc: the signal's answer
+        return True
+    for pid in procs:
+        try:
+            with open(f'/proc/{pid}/stat') as f:
+                fields = f.read().rsplit(')', 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if fields[2] == str(pgid) and fields[0] != 'Z':  # state, ppid, pgrp
+            return True
+    return False
 
 
 def tail(text: str, chars: int = 300) -> str:
@@ -147,6 +192,11 @@ class ScenarioRun(Demo):
                                  f'the arm: {e.message}')
         rejected = c.events_of('simulator', 'rejected_command')
         if rejected:
+            # The harness's own account names the command and its time: the command may
+            # reach the harness after the simulator's report of it.
+            c.spin_for(2.0, until=lambda: self.bad_command)
+            if self.bad_command:
+                raise ScenarioFailed(f'bad command: {self.bad_command}')
             raise ScenarioFailed(f'bad command: the simulator rejected it: '
                                  f'{rejected[-1].message}')
         if self.controller is not None and not self.controller.alive():
@@ -214,13 +264,13 @@ class ScenarioRun(Demo):
             except SuiteError as exc:
                 result.reason = f'the harness: {exc} (logs: {self.out / "logs"})'
             result.sim_time = max(c.sim_time, 0.0)
-            self._stop_controller(result)
+            self._stop_controller()
             codes.update({p.name: p.stop(signal.SIGINT) for p in self.procs
                           if p.name != 'recorder'})
             self._drain_recorder(c, topics=('joint_states',))
         finally:
             c.close()
-            self._stop_controller(result)
+            self._stop_controller()
             codes.update({p.name: p.stop(signal.SIGINT) for p in self.procs
                           if p.name not in codes})
         bad = {n: code for n, code in codes.items() if code not in (0, -signal.SIGINT)}
@@ -232,8 +282,8 @@ class ScenarioRun(Demo):
         result.wall = time.monotonic() - started
         return result
 
-    def _stop_controller(self, result: ScenarioResult) -> None:
-        if self.controller is not None and self.controller.proc.returncode is None:
+    def _stop_controller(self) -> None:
+        if self.controller is not None:
             self.controller.stop()
 
     def _grade(self, result: ScenarioResult, bag: Path) -> None:
@@ -258,7 +308,8 @@ class ScenarioRun(Demo):
     def _start_controller(self, c: SuiteClient) -> None:
         if self.command:
             self.controller = ControllerProcess(self.command, self.domain,
-                                                self.out / 'logs' / 'your_controller.log')
+                                                self.out / 'logs' / 'your_controller.log',
+                                                self.scenario.name)
         else:
             def publisher() -> bool:
                 return bool(c.node.get_publishers_info_by_topic('/effort_controller/commands'))
