@@ -27,6 +27,19 @@ extra ``foxglove``, imported only when a bridge is made) and the computations it
   simulated time (the latest ``clock``), as foxglove_bridge does with ``use_sim_time``, so
   the 3D panel's time is the joint states' stamps' time.
 
+* **Parameters, services, the connection graph** (capabilities ``parameters``,
+  ``services``, ``connectionGraph``), as foxglove_bridge offers them: parameters named
+  ``/<node>.<parameter>`` (:func:`param_name`), their values mapped both ways between
+  ``rcl_interfaces/msg/ParameterValue`` and Foxglove's (:func:`foxglove_value`,
+  :func:`ros_value`); ROS services advertised with their ``.srv`` halves as ``ros2msg``
+  schemas (:func:`service_schemas`), called in ``cdr`` (or ``json``); the graph as
+  :class:`Graph` (:func:`build_graph`), sent when it changed. The SDK asks from its threads;
+  each request (:class:`ParamGet`, :class:`ParamSet`, :class:`ServiceCall`) is handed to
+  the node through :meth:`Bridge.poll` and the SDK's thread waits for the answer (at most
+  :data:`PARAM_TIMEOUT`, :data:`SERVICE_TIMEOUT`), which the node gives from its own
+  thread without ever waiting itself.
+* **/rosout** (``rcl_interfaces/msg/Log``) is one more ROS channel.
+
 * **Validation** (:func:`stamp_refusal`, :func:`text_refusal`,
   :meth:`ClientChannel.refusal`): a stamp or time that is negative, overflows
   ``builtin_interfaces/Time`` or has ``nanosec`` outside [0, 1e9), a frame id with a NUL
@@ -52,10 +65,18 @@ import struct
 import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, cast
 
 from arm_bag.cdr import Cursor
-from arm_bag.msgdefs import schema_text
+from arm_bag.msgdefs import (
+    SEPARATOR,
+    MessageDefinitionError,
+    definition_file,
+    dependencies,
+    schema_text,
+    share_dirs,
+)
 from arm_dynamics.disturbance import MAX_LOAD
 from arm_dynamics.models import RobotModel
 from arm_dynamics.urdf import link_frames
@@ -86,6 +107,13 @@ FRAMES = ('base_link', 'link1', 'link2', 'tool0')
 #: CDR encapsulation header: XCDR1, little endian, no options.
 CDR_HEADER = b'\x00\x01\x00\x00'
 NS_PER_S = 1_000_000_000
+#: How long [s, wall] a client's parameter request waits for the node's answer (the SDK's
+#: thread of that client waits; the node's executor never does).
+PARAM_TIMEOUT = 3.0
+#: How long [s, wall] a client's service call waits for the ROS service's response.
+SERVICE_TIMEOUT = 10.0
+ROSOUT_TOPIC = '/rosout'
+ROSOUT_TYPE = 'rcl_interfaces/msg/Log'
 #: The latest ``builtin_interfaces/Time`` second: ``sec`` is an int32.
 MAX_STAMP_SEC = 2**31 - 1
 
@@ -454,6 +482,349 @@ def client_channel_refusal(topic: str, accepted: Mapping[str, str], encoding: st
     return None
 
 
+# ---------------------------------------------------------------------- parameters
+#: rcl_interfaces/msg/ParameterType codes.
+PARAMETER_NOT_SET, PARAMETER_BOOL, PARAMETER_INTEGER, PARAMETER_DOUBLE, PARAMETER_STRING = (
+    0, 1, 2, 3, 4)
+(PARAMETER_BYTE_ARRAY, PARAMETER_BOOL_ARRAY, PARAMETER_INTEGER_ARRAY, PARAMETER_DOUBLE_ARRAY,
+ PARAMETER_STRING_ARRAY) = (5, 6, 7, 8, 9)
+#: The field of rcl_interfaces/msg/ParameterValue that holds a value of each type.
+VALUE_FIELDS = {PARAMETER_BOOL: 'bool_value', PARAMETER_INTEGER: 'integer_value',
+                PARAMETER_DOUBLE: 'double_value', PARAMETER_STRING: 'string_value',
+                PARAMETER_BYTE_ARRAY: 'byte_array_value',
+                PARAMETER_BOOL_ARRAY: 'bool_array_value',
+                PARAMETER_INTEGER_ARRAY: 'integer_array_value',
+                PARAMETER_DOUBLE_ARRAY: 'double_array_value',
+                PARAMETER_STRING_ARRAY: 'string_array_value'}
+#: Foxglove's type hints (foxglove.ParameterType) a ROS type needs to survive JSON.
+HINTS = {PARAMETER_DOUBLE: 'float64', PARAMETER_DOUBLE_ARRAY: 'float64_array',
+         PARAMETER_BYTE_ARRAY: 'byte_array'}
+_ARRAY_TYPES = (PARAMETER_BYTE_ARRAY, PARAMETER_BOOL_ARRAY, PARAMETER_INTEGER_ARRAY,
+                PARAMETER_DOUBLE_ARRAY, PARAMETER_STRING_ARRAY)
+_INT64 = (-2**63, 2**63 - 1)
+
+
+@dataclass(frozen=True)
+class RosParam:
+    """A ROS parameter value as rcl_interfaces/msg/ParameterValue holds it: ``type`` (a
+    ParameterType code) and ``value`` of that type (None when not set; bytes for a byte
+    array; a list for the other arrays)."""
+
+    type: int
+    value: Any = None
+
+
+def param_name(node: str, param: str) -> str:
+    """The name foxglove_bridge gives parameter ``param`` of node ``node`` (fully qualified,
+    ``/simulator``): ``/simulator.pause_at``."""
+    return f'{node}.{param}'
+
+
+def split_param_name(name: str) -> tuple[str, str]:
+    """(node, parameter) of a Foxglove parameter name (``/simulator.pause_at`` ->
+    ``('/simulator', 'pause_at')``; node and namespace names hold no dot, parameter names
+    may: ``/n.qos_overrides./tf.depth``). ValueError naming the expected form."""
+    node, dot, param = name.partition('.')
+    if not dot or not param or not node.startswith('/') or node.endswith('/'):
+        raise ValueError(f'{name!r} is no parameter name of the form /<node>.<parameter>')
+    return node, param
+
+
+def ros_param_from_msg(msg: Any) -> RosParam:
+    """A :class:`RosParam` from an rcl_interfaces/msg/ParameterValue (any object with its
+    fields): arrays as lists, a byte array as bytes."""
+    kind = int(msg.type)
+    field = VALUE_FIELDS.get(kind)
+    if field is None:
+        return RosParam(PARAMETER_NOT_SET)
+    value = getattr(msg, field)
+    if kind == PARAMETER_BYTE_ARRAY:
+        return RosParam(kind, b''.join(b if isinstance(b, bytes) else bytes([b])
+                                       for b in value))
+    if kind in _ARRAY_TYPES:
+        return RosParam(kind, list(value))
+    return RosParam(kind, value)
+
+
+def fill_value_msg(msg: Any, param: RosParam) -> Any:
+    """Set an (empty) rcl_interfaces/msg/ParameterValue to ``param``; returns it."""
+    msg.type = param.type
+    field = VALUE_FIELDS.get(param.type)
+    if field is not None:
+        value = param.value
+        if param.type == PARAMETER_BYTE_ARRAY:
+            value = [bytes([b]) for b in value]
+        setattr(msg, field, value)
+    return msg
+
+
+def foxglove_value(param: RosParam) -> tuple[Any, str | None]:
+    """(native value, type hint) Foxglove shows for a ROS parameter, as foxglove_bridge
+    sends it: a bool, int, float (hint ``float64``, so 1.0 stays a double), str, bytes
+    (``byte_array``: base64 on the wire) or a list (a double array: ``float64_array``);
+    None for a parameter not set."""
+    if param.type not in VALUE_FIELDS:
+        return None, None
+    value = param.value
+    if param.type == PARAMETER_DOUBLE:
+        value = float(value)
+    elif param.type == PARAMETER_DOUBLE_ARRAY:
+        value = [float(v) for v in value]
+    elif param.type == PARAMETER_BYTE_ARRAY:
+        value = bytes(value)
+    elif param.type in _ARRAY_TYPES:
+        value = list(value)
+    return value, HINTS.get(param.type)
+
+
+def _number(v: object) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def ros_value(value: Any, hint: str | None = None, current: int | None = None) -> RosParam:
+    """The ROS parameter value of a value a client set (``hint`` Foxglove's type hint,
+    ``current`` the parameter's ROS type now, if known): a whole number becomes a double
+    for a double parameter (JSON cannot tell 2 from 2.0), an empty array takes the
+    parameter's array type; the node then decides (it refuses a wrong type, a read-only
+    parameter, a value out of range, with its reason).
+
+    Raises
+    ------
+    ValueError
+        A value no ROS parameter can hold (a map, an array of mixed kinds, an integer
+        beyond int64, an empty array of a parameter not known to be an array).
+    """
+    if value is None:
+        return RosParam(PARAMETER_NOT_SET)
+    if isinstance(value, bool):
+        return RosParam(PARAMETER_BOOL, value)
+    if isinstance(value, (bytes, bytearray)) or hint == 'byte_array':
+        if isinstance(value, str):
+            import base64
+
+            try:
+                value = base64.b64decode(value, validate=True)
+            except ValueError:
+                raise ValueError('a byte array must be base64 text') from None
+        if not isinstance(value, (bytes, bytearray)):
+            raise ValueError(f'a byte array must be bytes, got {value!r}')
+        return RosParam(PARAMETER_BYTE_ARRAY, bytes(value))
+    if isinstance(value, int):
+        if hint == 'float64' or current == PARAMETER_DOUBLE:
+            return RosParam(PARAMETER_DOUBLE, float(value))
+        if not _INT64[0] <= value <= _INT64[1]:
+            raise ValueError(f'{value} is beyond a 64-bit integer')
+        return RosParam(PARAMETER_INTEGER, value)
+    if isinstance(value, float):
+        return RosParam(PARAMETER_DOUBLE, value)
+    if isinstance(value, str):
+        return RosParam(PARAMETER_STRING, value)
+    if isinstance(value, Mapping):
+        raise ValueError('ROS parameters hold no maps')
+    if isinstance(value, (list, tuple)):
+        items = list(value)
+        if not items:
+            if hint == 'float64_array':
+                return RosParam(PARAMETER_DOUBLE_ARRAY, [])
+            if current in _ARRAY_TYPES and current != PARAMETER_BYTE_ARRAY:
+                return RosParam(current, [])
+            raise ValueError('cannot tell the type of an empty array of a parameter that is '
+                             'not an array')
+        if all(isinstance(v, bool) for v in items):
+            return RosParam(PARAMETER_BOOL_ARRAY, items)
+        if all(isinstance(v, str) for v in items):
+            return RosParam(PARAMETER_STRING_ARRAY, items)
+        if all(_number(v) for v in items):
+            if (all(isinstance(v, int) for v in items) and hint != 'float64_array'
+                    and current != PARAMETER_DOUBLE_ARRAY):
+                if not all(_INT64[0] <= v <= _INT64[1] for v in items):
+                    raise ValueError('an integer of the array is beyond a 64-bit integer')
+                return RosParam(PARAMETER_INTEGER_ARRAY, items)
+            return RosParam(PARAMETER_DOUBLE_ARRAY, [float(v) for v in items])
+        raise ValueError('a ROS parameter array holds one kind: bools, integers, doubles or '
+                         f'strings, got {items!r}')
+    raise ValueError(f'no ROS parameter holds {value!r}')
+
+
+@dataclass(frozen=True)
+class ParamValue:
+    """A parameter for Foxglove: its name (``/simulator.pause_at``) and :class:`RosParam`
+    (None: no such parameter, left out of the answer)."""
+
+    name: str
+    param: RosParam | None
+
+
+# ---------------------------------------------------------------------- services
+def _find_srv(type_name: str) -> Path:
+    parts = type_name.split('/')
+    if len(parts) != 3 or parts[1] != 'srv':
+        raise MessageDefinitionError(f'type name {type_name!r} is not of the form '
+                                     '<pkg>/srv/<Type>')
+    tried = []
+    for d in share_dirs(parts[0]):
+        path = d / 'srv' / f'{parts[2]}.srv'
+        if path.is_file():
+            return path
+        tried.append(str(path))
+    raise MessageDefinitionError(f'no .srv file for {type_name!r}; looked in: '
+                                 + ', '.join(tried))
+
+
+def _expanded(package: str, main: str) -> str:
+    """``main`` (a .msg text, or one half of a .srv) followed by the definitions it uses,
+    as a ``ros2msg`` schema (:func:`arm_bag.msgdefs.schema_text`'s layout)."""
+    blocks: list[str] = []
+    seen: set[str] = set()
+    todo = dependencies(package, main)
+    while todo:
+        dep = todo.pop(0)
+        if dep in seen:
+            continue
+        seen.add(dep)
+        text = definition_file(dep).read_text()
+        blocks.append(f'{SEPARATOR}\nMSG: {dep}\n{text}')
+        todo.extend(d for d in dependencies(dep.split('/')[0], text) if d not in seen)
+    return '\n'.join([main.strip('\n')] + [b.rstrip('\n') for b in blocks]) + '\n'
+
+
+def service_schemas(type_name: str) -> tuple[str, str]:
+    """The ``ros2msg`` schemas of the request and the response of service type
+    ``type_name`` (``std_srvs/srv/Trigger``), from its installed ``.srv`` file, as
+    foxglove_bridge advertises them. Raises
+    :class:`~arm_bag.msgdefs.MessageDefinitionError` if it is not installed."""
+    text = _find_srv(type_name).read_text()
+    lines = text.splitlines()
+    cut = next((i for i, line in enumerate(lines) if line.strip() == '---'), len(lines))
+    package = type_name.split('/')[0]
+    return (_expanded(package, '\n'.join(lines[:cut])),
+            _expanded(package, '\n'.join(lines[cut + 1:])))
+
+
+def message_to_json(msg: Any) -> Any:
+    """A ROS message (or field value) as JSON-ready data (for a service's JSON response)."""
+    if hasattr(msg, 'get_fields_and_field_types'):
+        return {f: message_to_json(getattr(msg, f)) for f in msg.get_fields_and_field_types()}
+    if isinstance(msg, (bytes, bytearray)):
+        return list(msg)
+    if isinstance(msg, (list, tuple)) or type(msg).__name__ in ('array', 'ndarray'):
+        return [message_to_json(v) for v in msg]
+    return msg
+
+
+def fill_message(msg: Any, doc: Any, path: str = '') -> Any:
+    """Set the fields of ROS message ``msg`` from JSON object ``doc`` (missing fields keep
+    their defaults); returns it. ValueError naming a field the message does not have or a
+    value of the wrong kind."""
+    if not isinstance(doc, Mapping):
+        raise ValueError(f'{path or "the request"} must be a JSON object')
+    fields = msg.get_fields_and_field_types()
+    for key, value in doc.items():
+        where = f'{path}.{key}' if path else key
+        if key not in fields:
+            raise ValueError(f'{where}: no such field')
+        current = getattr(msg, key)
+        if hasattr(current, 'get_fields_and_field_types'):
+            fill_message(current, value, where)
+            continue
+        try:
+            setattr(msg, key, value)
+        except (AssertionError, TypeError, ValueError) as exc:
+            raise ValueError(f'{where}: {exc}') from None
+    return msg
+
+
+# ---------------------------------------------------------------------- connection graph
+@dataclass(frozen=True)
+class Graph:
+    """The ROS graph as Foxglove's connection graph shows it: topic -> the nodes (fully
+    qualified names) publishing it, topic -> those subscribing to it, service -> the nodes
+    providing it; each sorted, so two graphs compare equal when the ROS graph is the same."""
+
+    published: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    subscribed: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    services: tuple[tuple[str, tuple[str, ...]], ...] = ()
+
+
+def _sorted_map(m: Mapping[str, Any]) -> tuple[tuple[str, tuple[str, ...]], ...]:
+    return tuple((k, tuple(sorted(set(v)))) for k, v in sorted(m.items()) if v)
+
+
+def build_graph(publishers: Mapping[str, Sequence[str]], subscribers: Mapping[str, Sequence[str]],
+                providers: Mapping[str, Sequence[str]]) -> Graph:
+    """A :class:`Graph` of topic -> publishing nodes, topic -> subscribing nodes, service ->
+    providing nodes (entries with no node are left out, duplicates merged)."""
+    return Graph(_sorted_map(publishers), _sorted_map(subscribers), _sorted_map(providers))
+
+
+def node_name(namespace: str, name: str) -> str:
+    """A node's fully qualified name (``/`` + ``simulator`` -> ``/simulator``)."""
+    return namespace.rstrip('/') + '/' + name
+
+
+# ---------------------------------------------------------------------- requests
+class Request:
+    """A client's request the node answers from its thread (:meth:`Bridge.poll` hands it
+    over): the SDK thread that made it waits (:meth:`wait`) for :meth:`answer` or
+    :meth:`fail`."""
+
+    def __init__(self, client: int) -> None:
+        self.client = client
+        self.result: Any = None
+        self.error: str | None = None
+        self._done = threading.Event()
+
+    def answer(self, result: Any) -> None:
+        self.result = result
+        self._done.set()
+
+    def fail(self, reason: str) -> None:
+        self.error = reason
+        self._done.set()
+
+    @property
+    def done(self) -> bool:
+        return self._done.is_set()
+
+    def wait(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` [s] (wall) for the answer; True if it came."""
+        return self._done.wait(timeout)
+
+
+class ParamGet(Request):
+    """Get parameters ``names`` (empty: every parameter of every node); answered with a
+    list of :class:`ParamValue`."""
+
+    def __init__(self, client: int, names: Sequence[str]) -> None:
+        super().__init__(client)
+        self.names = list(names)
+
+
+class ParamSet(Request):
+    """Set parameters: (name, native value, Foxglove type hint) each; answered with a list
+    of :class:`ParamValue`, each parameter's value after the attempt (a refused one keeps
+    its value; the node reports why)."""
+
+    def __init__(self, client: int, values: Sequence[tuple[str, Any, str | None]]) -> None:
+        super().__init__(client)
+        self.values = list(values)
+
+
+class ServiceCall(Request):
+    """A client's call of ROS service ``service`` (type ``type_name``): ``encoding`` ``cdr``
+    or ``json`` and the request's bytes; answered with the response's bytes, in the same
+    encoding."""
+
+    def __init__(self, client: int, service: str, type_name: str, call_id: int,
+                 encoding: str, payload: bytes) -> None:
+        super().__init__(client)
+        self.service = service
+        self.type_name = type_name
+        self.call_id = call_id
+        self.encoding = encoding
+        self.payload = payload
+
+
 # ---------------------------------------------------------------------- the server
 @dataclass(frozen=True)
 class ClientMessage:
@@ -474,6 +845,10 @@ class ConnectionRefusal:
     offered, which are accepted)."""
 
     text: str
+
+
+#: What clients send the node (:meth:`Bridge.poll`).
+Incoming = ClientMessage | ConnectionRefusal | str | Request
 
 
 class Bridge:
@@ -513,19 +888,26 @@ class Bridge:
         self.latched: set[str] = set()
         self.last: dict[str, tuple[bytes, int]] = {}  # latched topic -> (data, log time)
         self.resend: set[str] = set()
-        self.incoming: queue.SimpleQueue[ClientMessage | ConnectionRefusal | str] = (
-            queue.SimpleQueue())
+        self.incoming: queue.SimpleQueue[Incoming] = queue.SimpleQueue()
+        self._pending: set[Request] = set()  # requests an SDK thread waits on
+        self.services: dict[str, str] = {}  # advertised service -> ROS type
+        self.graph: Graph | None = None  # the connection graph last published
+        self.graph_wanted = False  # a client subscribes to the connection graph
+        self._stopping = False
         self._lock = threading.Lock()
         # (client, its channel) -> (topic as named, encoding, resolved topic)
         self._client_channels: dict[tuple[int, int], tuple[str, str, str]] = {}
         self._topic_of_id: dict[int, str] = {}
+        self._unservable: set[str] = set()  # services that cannot be offered (reported)
         # With the relay (arm_sim.live_front) the SDK listens on a loopback port of its own
         # and the front on host:port, accepting both names of the protocol.
         sdk_host, sdk_port = (BACKEND_HOST, 0) if relay else (host, port)
         try:
             self.server = foxglove.start_server(
                 name=name, host=sdk_host, port=sdk_port, context=self.context,
-                capabilities=[Capability.ClientPublish, Capability.Time],
+                capabilities=[Capability.ClientPublish, Capability.Time,
+                              Capability.Parameters, Capability.Services,
+                              Capability.ConnectionGraph],
                 supported_encodings=list(CLIENT_ENCODINGS),
                 server_listener=cast(Any, self))  # the callbacks it uses, below
         except RuntimeError as exc:
@@ -613,16 +995,18 @@ class Bridge:
         level = self._fox.StatusLevel.Warning if warning else self._fox.StatusLevel.Info
         self.server.publish_status(message, level)
 
-    def poll(self, limit: int = 1000) -> list[ClientMessage | ConnectionRefusal | str]:
+    def poll(self, limit: int = 1000) -> list[Incoming]:
         """Send latched topics again to new subscribers, and return what clients sent
-        since the last call (a :class:`ClientMessage`, a :class:`ConnectionRefusal`, or a
-        str: a refused client channel), at most ``limit`` items."""
+        since the last call (a :class:`ClientMessage`, a :class:`ConnectionRefusal`, a
+        str: a refused client channel, or a :class:`Request` to answer: a
+        :class:`ParamGet`, :class:`ParamSet` or :class:`ServiceCall`), at most ``limit``
+        items."""
         with self._lock:
             again = [(t, self.last[t]) for t in self.resend if t in self.last]
             self.resend.clear()
         for topic, (data, log_time) in again:
             self.channels[topic].log(data, log_time=log_time)
-        out: list[ClientMessage | ConnectionRefusal | str] = []
+        out: list[Incoming] = []
         for _ in range(limit):
             try:
                 out.append(self.incoming.get_nowait())
@@ -630,8 +1014,119 @@ class Bridge:
                 break
         return out
 
+    # ------------------------------------------------------------ parameters, services, graph
+    def publish_parameters(self, values: Sequence[ParamValue]) -> None:
+        """Send changed parameter values to the clients that subscribe to them (the SDK
+        picks those)."""
+        params = [self._fox_parameter(v) for v in values if v.param is not None]
+        if params:
+            self.server.publish_parameter_values(params)
+
+    def _fox_parameter(self, v: ParamValue) -> Any:
+        from foxglove import Parameter, ParameterType, ParameterValue
+
+        value, hint = foxglove_value(v.param or RosParam(PARAMETER_NOT_SET))
+        if isinstance(value, list) and not value and hint is None:
+            return Parameter(v.name, value=ParameterValue.Array([]))
+        kind = {'float64': ParameterType.Float64, 'float64_array': ParameterType.Float64Array,
+                'byte_array': ParameterType.ByteArray}.get(hint or '')
+        return Parameter(v.name, value=value, type=kind)
+
+    def set_services(self, services: Mapping[str, str]) -> list[str]:
+        """Advertise ROS services ``services`` (name -> type) to clients and withdraw the
+        others, as foxglove_bridge does: each with its type's request and response schemas
+        (``ros2msg``, called in ``cdr``). Returns why some could not be (their type's
+        definition not installed, or the SDK's reason), once per service."""
+        from foxglove import MessageSchema, Schema, Service, ServiceSchema
+
+        gone = [n for n, t in self.services.items() if services.get(n) != t]
+        if gone:
+            self.server.remove_services(gone)
+            for n in gone:
+                del self.services[n]
+        problems: list[str] = []
+        new = []
+        for name, type_name in sorted(services.items()):
+            if name in self.services or name in self._unservable:
+                continue
+            try:
+                req, resp = service_schemas(type_name)
+            except MessageDefinitionError as exc:
+                self._unservable.add(name)
+                problems.append(f'not offering service {name}: {exc}')
+                continue
+            base = type_name
+            schema = ServiceSchema(
+                name=type_name,
+                request=MessageSchema(encoding='cdr', schema=Schema(
+                    name=f'{base}_Request', encoding='ros2msg', data=req.encode())),
+                response=MessageSchema(encoding='cdr', schema=Schema(
+                    name=f'{base}_Response', encoding='ros2msg', data=resp.encode())))
+            handler = functools.partial(self._call_service, name, type_name)
+            new.append((name, type_name, Service(name, schema=schema, handler=handler)))
+        if new:
+            try:
+                self.server.add_services([s for _, _, s in new])
+                self.services.update({n: t for n, t, _ in new})
+            except Exception as exc:  # the SDK's error: one at a time, to name the culprit
+                for n, t, svc in new:
+                    try:
+                        self.server.add_services([svc])
+                        self.services[n] = t
+                    except Exception as one:
+                        self._unservable.add(n)
+                        problems.append(f'not offering service {n}: {one or exc}')
+        return problems
+
+    def publish_graph(self, graph: Graph) -> bool:
+        """Send ``graph`` to the clients that subscribe to the connection graph (the SDK
+        sends the difference, and the whole to a new subscriber); False (nothing sent) when
+        it is the one last sent."""
+        if graph == self.graph:
+            return False
+        g = self._fox.ConnectionGraph()
+        for topic, nodes in graph.published:
+            g.set_published_topic(topic, list(nodes))
+        for topic, nodes in graph.subscribed:
+            g.set_subscribed_topic(topic, list(nodes))
+        for service, nodes in graph.services:
+            g.set_advertised_service(service, list(nodes))
+        self.server.publish_connection_graph(g)
+        self.graph = graph
+        return True
+
+    def _ask(self, request: Request, timeout: float) -> bool:
+        """Hand ``request`` to the node and wait for its answer (on the SDK's thread)."""
+        if self._stopping:
+            request.fail('the live node is stopping')
+            return True
+        with self._lock:
+            self._pending.add(request)
+        try:
+            self.incoming.put(request)
+            return request.wait(timeout)
+        finally:
+            with self._lock:
+                self._pending.discard(request)
+
+    def _call_service(self, name: str, type_name: str, request: Any) -> bytes:
+        """The SDK's handler of a service call (on a thread of its own): the node calls
+        the ROS service; the response, or an error naming why not."""
+        call = ServiceCall(int(request.client_id), name, type_name, int(request.call_id),
+                           str(request.encoding), bytes(request.payload))
+        if not self._ask(call, SERVICE_TIMEOUT):
+            raise RuntimeError(f'{name}: no response within {SERVICE_TIMEOUT:g} s')
+        if call.error is not None:
+            raise RuntimeError(call.error)
+        return bytes(call.result)
+
     def stop(self) -> None:
-        """Stop the server (clients are disconnected)."""
+        """Stop the server (clients are disconnected; requests waiting are failed)."""
+        self._stopping = True
+        with self._lock:
+            waiting = list(self._pending)
+        for r in waiting:
+            r.fail('the live node is stopping')
         if self.front is not None:
             self.front.stop()
         self.server.stop()
@@ -660,6 +1155,41 @@ class Bridge:
     def on_client_unadvertise(self, client: Any, client_channel_id: int) -> None:
         with self._lock:
             self._client_channels.pop((client.id, client_channel_id), None)
+
+    def on_get_parameters(self, client: Any, param_names: list[str],
+                          request_id: str | None = None) -> list[Any]:
+        """Parameters ``param_names`` (none: all), asked of their nodes by the node; waits
+        up to :data:`PARAM_TIMEOUT` (a node that does not answer is left out)."""
+        req = ParamGet(int(client.id), list(param_names))
+        if not self._ask(req, PARAM_TIMEOUT) or req.error is not None:
+            return []
+        return [self._fox_parameter(v) for v in req.result if v.param is not None]
+
+    def on_set_parameters(self, client: Any, parameters: list[Any],
+                          request_id: str | None = None) -> list[Any]:
+        """Set ``parameters`` through their nodes; returns their values afterwards (a
+        refused one keeps its value, and the node tells the clients why)."""
+        hints = {'Float64': 'float64', 'Float64Array': 'float64_array',
+                 'ByteArray': 'byte_array'}
+        values = [(p.name, p.get_value(),
+                   hints.get(p.type.name) if p.type is not None else None)
+                  for p in parameters]
+        req = ParamSet(int(client.id), values)
+        if not self._ask(req, PARAM_TIMEOUT) or req.error is not None:
+            return []
+        return [self._fox_parameter(v) for v in req.result if v.param is not None]
+
+    def on_parameters_subscribe(self, param_names: list[str]) -> None:
+        return None
+
+    def on_parameters_unsubscribe(self, param_names: list[str]) -> None:
+        return None
+
+    def on_connection_graph_subscribe(self) -> None:
+        self.graph_wanted = True
+
+    def on_connection_graph_unsubscribe(self) -> None:
+        self.graph_wanted = False
 
     def on_message_data(self, client: Any, client_channel_id: int, data: bytes) -> None:
         with self._lock:

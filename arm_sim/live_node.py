@@ -30,6 +30,16 @@ Clients may publish into ROS on the topics of :data:`arm_sim.live.CLIENT_CHANNEL
 [PORT]`` or ``arm-sim demo --foxglove [PORT]``; it logs ``serving ws://HOST:PORT`` once clients can
 connect. A port that cannot be bound is refused (exit 2).
 
+As foxglove_bridge does, it also serves ``/rosout`` (``rcl_interfaces/msg/Log``), every
+node's parameters (``/<node>.<parameter>``: get and set through each node's parameter
+services, asked asynchronously and answered from :meth:`LiveNode.poll`, so the executor never
+waits; a set the node refuses is reported to the clients with its reason, ``live:
+refused_parameter``; changes from ``/parameter_events`` go to the clients that subscribe),
+every ROS service of the graph (``/simulator/reset``, ``/simulator/hold``, ...; called
+asynchronously, the response returned, a failure reported with its reason, ``live:
+failed_service_call``) and the connection graph (read every second of wall time, sent when
+it changed, while a client subscribes to it).
+
 No message takes it down: a ``clock`` or ``joint_states`` stamp that is negative, overflows
 or has ``nanosec`` outside [0, 1e9), a joint state's frame id with a NUL character or
 non-finite positions, and a client's goal with any of these (or non-finite numbers) are
@@ -44,13 +54,20 @@ serving.
 from __future__ import annotations
 
 import functools
+import importlib
+import json
+import time
+from collections import defaultdict
+from collections.abc import Generator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from rcl_interfaces.msg import Parameter, ParameterEvent, ParameterValue
+from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
 
 from arm_bag.msgdefs import MessageDefinitionError
@@ -73,15 +90,34 @@ from arm_sim.live import (
     DEFAULT_PORT,
     DESCRIPTION_TOPIC,
     FOXGLOVE_MISSING,
+    PARAM_TIMEOUT,
+    ROSOUT_TOPIC,
+    ROSOUT_TYPE,
+    SERVICE_TIMEOUT,
     TF_TOPIC,
     Bridge,
     ClientChannel,
     ClientMessage,
     ConnectionRefusal,
+    ParamGet,
+    ParamSet,
+    ParamValue,
+    Request,
+    RosParam,
+    ServiceCall,
     arm_transforms,
+    build_graph,
     cdr_header,
     cdr_string,
+    fill_message,
+    fill_value_msg,
     joint_positions,
+    message_to_json,
+    node_name,
+    param_name,
+    ros_param_from_msg,
+    ros_value,
+    split_param_name,
     stamp_refusal,
     text_refusal,
 )
@@ -93,7 +129,9 @@ as a channel (cdr, ros2msg schema), raw CDR forwarded at its receive time on sim
 /robot_description (the URDF from the robot parameters) and /tf (foxglove.FrameTransforms
 base_link -> link1 -> link2 -> tool0 from the joint states) for the 3D panel; a client's
 goal_pose (Publish pose) and simulator/push (a WrenchStamped tip push, Publish panel) are
-published into ROS. Connect Foxglove to ws://localhost:PORT.
+published into ROS; /rosout, every node's parameters (/<node>.<parameter>, get and set),
+every ROS service (e.g. /simulator/reset) and the connection graph, as foxglove_bridge offers
+them. Connect Foxglove to ws://localhost:PORT.
 Stamps that are negative, overflow or have nanosec outside [0, 1e9), frame ids with NUL and
 non-finite numbers (on clock, joint_states or a client's goal or push; a push's components
 beyond 1e6) are refused with a throttled warning and a /diagnostics report (rejected_clock,
@@ -122,6 +160,60 @@ class Outlet:
 
 POLL_PERIOD = 0.02  # s (wall): how often client messages and new subscriptions are handled
 QUEUE_DEPTH = 100  # messages each subscription keeps
+GRAPH_PERIOD = 1.0  # s (wall): how often the ROS graph is read (services, connection graph)
+#: What the node leaves a parameter request [s, wall]: within the client's wait.
+PARAM_BUDGET = 0.8 * PARAM_TIMEOUT
+SERVICE_BUDGET = 0.8 * SERVICE_TIMEOUT
+
+
+class Call:
+    """One asynchronous ROS service call, driven from :meth:`LiveNode.poll` (never waited
+    on): sent once the service is there, given up at ``deadline`` (monotonic [s])."""
+
+    def __init__(self, client: Any, request: Any, deadline: float, what: str) -> None:
+        self.client, self.request, self.deadline, self.what = client, request, deadline, what
+        self.future: Any = None
+        self.result: Any = None
+        self.error: str | None = None
+        self.finished = False
+
+    def step(self) -> bool:
+        """Advance; True once answered or failed (:attr:`result` or :attr:`error`)."""
+        if self.finished:
+            return True
+        now = time.monotonic()
+        if self.future is None:
+            if self.client.service_is_ready():
+                self.future = self.client.call_async(self.request)
+            elif now > self.deadline:
+                return self._end(error=f'{self.what}: the service is not available')
+            else:
+                return False
+        if self.future.done():
+            exc = self.future.exception()
+            if exc is not None:
+                return self._end(error=f'{self.what}: {exc}')
+            return self._end(result=self.future.result())
+        if now > self.deadline:
+            self.client.remove_pending_request(self.future)
+            return self._end(error=f'{self.what}: no answer in time')
+        return False
+
+    def _end(self, result: Any = None, error: str | None = None) -> bool:
+        self.result, self.error, self.finished = result, error, True
+        return True
+
+
+def _wait(calls: Sequence[Call]) -> Generator[None, None, None]:
+    """Yield (to the next poll) until every call is finished."""
+    while not all([c.step() for c in calls]):  # a list: every call steps
+        yield
+
+
+def service_class(type_name: str) -> Any:
+    """The rclpy service class of ``pkg/srv/Type``."""
+    pkg, kind, name = type_name.split('/')
+    return getattr(importlib.import_module(f'{pkg}.{kind}'), name)
 
 
 class LiveNode(Node):
@@ -167,6 +259,7 @@ class LiveNode(Node):
         # tf/tf_static: this node sends the frames itself, as foxglove.FrameTransforms on
         # /tf (from each joint state), so the 3D panel gets each transform once.
         topics = {t: ty for t, ty in KNOWN_TOPICS.items() if t not in ('tf', 'tf_static')}
+        topics[ROSOUT_TOPIC] = ROSOUT_TYPE  # every node's log, as foxglove_bridge sends it
         latched = {self.resolve_topic_name(t) for t in LATCHED}
         self.subs = []
         for rel, type_name in topics.items():
@@ -187,7 +280,16 @@ class LiveNode(Node):
             self.bridge.forward(self.description, cdr_string(urdf), 0)
         for o in self.outlets.values():
             o.publisher = self.create_publisher(o.cls, o.channel.topic, 10)
+        # Parameters, services and the connection graph (requests answered from poll()).
+        self.jobs: list[tuple[Request, Generator[None, None, None]]] = []
+        self.param_clients: dict[tuple[str, str], Any] = {}  # (node, kind) -> client
+        self.service_clients: dict[tuple[str, str], Any] = {}  # (service, type) -> client
+        self.counts = {'parameter_requests': 0, 'parameters_set': 0, 'service_calls': 0}
+        self.create_subscription(ParameterEvent, '/parameter_events', self._on_parameter_event,
+                                 QoSProfile(depth=QUEUE_DEPTH,
+                                            reliability=ReliabilityPolicy.RELIABLE))
         self.create_timer(POLL_PERIOD, self.poll, clock=steady_clock())
+        self.create_timer(GRAPH_PERIOD, self.read_graph, clock=steady_clock())
         self.get_logger().info(f'serving {self.bridge.url} (Foxglove WebSocket; '
                                f'{len(self.bridge.channels)} topics, {self.tf_topic}, client '
                                f'publishing on {", ".join(self.outlets)})')
@@ -272,14 +374,248 @@ class LiveNode(Node):
                     self.diag.problem('refused_connection', item.text)
                 elif isinstance(item, str):
                     self._tell_clients('refused_channel', item)
+                elif isinstance(item, Request):
+                    self._start(item)
                 else:
                     self._publish(item)
             except Exception as exc:  # never die on what a client sent
                 self.diag.problem('internal_error', f'a client message failed: {exc!r}',
                                   'ERROR')
+        self._step_jobs()
+        if self.bridge.graph_wanted and self.bridge.graph is None:
+            self.read_graph()  # a first subscriber: at once, not at the next period
         self.diag.set('OK', f'serving {self.bridge.url}', url=self.bridge.url,
-                      forwarded=self.forwarded,
+                      forwarded=self.forwarded, **self.counts,
                       **{o.channel.counter: o.published for o in self.outlets.values()})
+
+    # ------------------------------------------------------------------ client requests
+    def _start(self, req: Request) -> None:
+        """Begin answering a client's request (a job stepped by each poll)."""
+        if isinstance(req, ParamGet):
+            job = self._get_job(req)
+            self.counts['parameter_requests'] += 1
+        elif isinstance(req, ParamSet):
+            job = self._set_job(req)
+            self.counts['parameter_requests'] += 1
+        elif isinstance(req, ServiceCall):
+            job = self._service_job(req)
+            self.counts['service_calls'] += 1
+        else:
+            req.fail(f'unknown request {type(req).__name__}')
+            return
+        self.jobs.append((req, job))
+
+    def _step_jobs(self) -> None:
+        """Advance each request's job; a job that fails fails its request (reported)."""
+        running = []
+        for req, job in self.jobs:
+            try:
+                next(job)
+                running.append((req, job))
+            except StopIteration:
+                if not req.done:
+                    req.fail('no answer')
+            except Exception as exc:  # never die on a client's request
+                req.fail(f'failed: {exc!r}')
+                self.diag.problem('internal_error', f'client {req.client}: a request failed: '
+                                  f'{exc!r}', 'ERROR')
+        self.jobs = running
+
+    def _param_client(self, node: str, kind: str) -> Any:
+        """The node's client of ``node``'s parameter service ``kind`` (made once)."""
+        key = (node, kind)
+        if key not in self.param_clients:
+            srv = {'get': GetParameters, 'set': SetParameters, 'list': ListParameters}[kind]
+            name = {'get': 'get_parameters', 'set': 'set_parameters',
+                    'list': 'list_parameters'}[kind]
+            self.param_clients[key] = self.create_client(srv, f'{node}/{name}')
+        return self.param_clients[key]
+
+    def _param_nodes(self, kind: str) -> set[str]:
+        """The nodes offering parameter service ``kind`` now (hidden ones left out)."""
+        suffix = {'get': '/get_parameters', 'list': '/list_parameters',
+                  'set': '/set_parameters'}[kind]
+        return {name[:-len(suffix)] for name, _ in self.get_service_names_and_types()
+                if name.endswith(suffix) and '/_' not in name}
+
+    def _get_calls(self, wanted: dict[str, list[str]], deadline: float) -> dict[str, Call]:
+        return {node: Call(self._param_client(node, 'get'), GetParameters.Request(names=names),
+                           deadline, f'{node}/get_parameters')
+                for node, names in wanted.items() if names}
+
+    @staticmethod
+    def _values(wanted: dict[str, list[str]], calls: dict[str, Call]) -> dict[str, RosParam]:
+        """Foxglove name -> value, from finished GetParameters calls (a node that failed,
+        or answered a different count: an undeclared name, is left out)."""
+        out: dict[str, RosParam] = {}
+        for node, call in calls.items():
+            values = list(call.result.values) if call.result is not None else []
+            if len(values) == len(wanted[node]):
+                out.update({param_name(node, n): ros_param_from_msg(v)
+                            for n, v in zip(wanted[node], values)})
+        return out
+
+    def _get_job(self, req: ParamGet) -> Generator[None, None, None]:
+        """Ask each node's parameter services (every node's list first, for all)."""
+        deadline = time.monotonic() + PARAM_BUDGET
+        wanted: dict[str, list[str]] = defaultdict(list)
+        if req.names:
+            for name in req.names:
+                try:
+                    node, param = split_param_name(name)
+                except ValueError:
+                    continue  # no such parameter: left out, as foxglove_bridge does
+                wanted[node].append(param)
+            nodes = self._param_nodes('get')
+            wanted = defaultdict(list, {n: p for n, p in wanted.items() if n in nodes})
+        else:
+            lists = {node: Call(self._param_client(node, 'list'), ListParameters.Request(),
+                                deadline, f'{node}/list_parameters')
+                     for node in sorted(self._param_nodes('list'))}
+            yield from _wait(list(lists.values()))
+            for node, call in lists.items():
+                if call.result is not None:
+                    wanted[node] = list(call.result.result.names)
+        calls = self._get_calls(wanted, deadline)
+        yield from _wait(list(calls.values()))
+        values = self._values(wanted, calls)
+        req.answer([ParamValue(n, v) for n, v in values.items()])
+
+    def _set_job(self, req: ParamSet) -> Generator[None, None, None]:
+        """Set parameters through their nodes: their current types first (a whole number
+        for a double), then SetParameters; refusals reported with the node's reason."""
+        deadline = time.monotonic() + PARAM_BUDGET
+        refusals: list[tuple[str, str]] = []
+        wanted: dict[str, list[str]] = defaultdict(list)
+        given: dict[str, tuple[Any, str | None]] = {}
+        nodes = self._param_nodes('set')
+        for name, value, hint in req.values:
+            try:
+                node, param = split_param_name(name)
+            except ValueError as exc:
+                refusals.append((name, str(exc)))
+                continue
+            if node not in nodes:
+                refusals.append((name, f'no node {node} offers parameters'))
+                continue
+            wanted[node].append(param)
+            given[name] = (value, hint)
+        calls = self._get_calls(wanted, deadline)
+        yield from _wait(list(calls.values()))
+        before = self._values(wanted, calls)
+        sets: dict[str, tuple[list[str], Call]] = {}
+        after: dict[str, RosParam] = dict(before)
+        for node, params in wanted.items():
+            msgs, names = [], []
+            for param in params:
+                name = param_name(node, param)
+                value, hint = given[name]
+                current = before.get(name)
+                try:
+                    ros = ros_value(value, hint, current.type if current else None)
+                except ValueError as exc:
+                    refusals.append((name, str(exc)))
+                    continue
+                msgs.append(Parameter(name=param, value=fill_value_msg(ParameterValue(), ros)))
+                names.append(name)
+            if msgs:
+                sets[node] = (names, Call(self._param_client(node, 'set'),
+                                          SetParameters.Request(parameters=msgs), deadline,
+                                          f'{node}/set_parameters'))
+        yield from _wait([c for _, c in sets.values()])
+        for names, call in sets.values():
+            if call.result is None:
+                refusals.extend((n, call.error or 'no answer') for n in names)
+                continue
+            for name, msg, result in zip(names, call.request.parameters, call.result.results):
+                if result.successful:
+                    after[name] = ros_param_from_msg(msg.value)
+                    self.counts['parameters_set'] += 1
+                    self.get_logger().info(f'client {req.client}: parameter {name} set to '
+                                           f'{after[name].value!r}')
+                else:
+                    refusals.append((name, result.reason or 'refused'))
+        for name, reason in refusals:
+            text = f'client {req.client}: parameter {name} not set: {reason}'
+            self.diag.problem('refused_parameter', text, client=req.client, parameter=name)
+            self.bridge.status(text)  # each one: a client's own action, answered
+        req.answer([ParamValue(n, after[n]) for n, _, _ in req.values if n in after])
+
+    def _service_job(self, call: ServiceCall) -> Generator[None, None, None]:
+        """Call a ROS service for a client: its request (cdr or json) deserialised, sent
+        asynchronously, the response serialised in the request's encoding."""
+        try:
+            cls = service_class(call.type_name)
+            if call.encoding == 'cdr':
+                request = deserialize_message(call.payload, cls.Request)
+            elif call.encoding == 'json':
+                request = fill_message(cls.Request(), json.loads(call.payload or b'{}'))
+            else:
+                raise ValueError(f'encoding {call.encoding!r} is not accepted (cdr, json)')
+        except Exception as exc:  # rclpy raises a bare error on malformed CDR
+            self._service_failed(call, f'{call.service}: not a {call.type_name} request: {exc}')
+            return
+        key = (call.service, call.type_name)
+        if key not in self.service_clients:
+            self.service_clients[key] = self.create_client(cls, call.service)
+        ros = Call(self.service_clients[key], request, time.monotonic() + SERVICE_BUDGET,
+                   call.service)
+        yield from _wait([ros])
+        if ros.result is None:
+            self._service_failed(call, ros.error or f'{call.service}: no response')
+            return
+        if call.encoding == 'cdr':
+            data = serialize_message(ros.result)
+        else:
+            data = json.dumps(message_to_json(ros.result)).encode()
+        call.answer(data)
+        shown = json.dumps(message_to_json(ros.result))
+        self.get_logger().info(f'client {call.client}: called {call.service}: '
+                               f'{shown[:200]}')
+
+    def _service_failed(self, call: ServiceCall, reason: str) -> None:
+        call.fail(reason)
+        self.diag.problem('failed_service_call', f'client {call.client}: {reason}',
+                          client=call.client, service=call.service)
+
+    def _on_parameter_event(self, msg: ParameterEvent) -> None:
+        """A node's new or changed parameters, to the clients that subscribe to them."""
+        try:
+            self.bridge.publish_parameters(
+                [ParamValue(param_name(msg.node, p.name), ros_param_from_msg(p.value))
+                 for p in list(msg.new_parameters) + list(msg.changed_parameters)])
+        except Exception as exc:  # never die on a message
+            self.diag.problem('internal_error', f'a parameter event failed: {exc!r}', 'ERROR')
+
+    # ------------------------------------------------------------------ the ROS graph
+    def read_graph(self) -> None:
+        """Read the ROS graph (wall period :data:`GRAPH_PERIOD`): the services offered to
+        clients follow it; while a client subscribes to the connection graph, it is sent
+        when it changed. Never raises."""
+        try:
+            services = {name: types[0] for name, types in self.get_service_names_and_types()
+                        if types and '/_' not in name}
+            for problem in self.bridge.set_services(services):
+                self.get_logger().warn(problem)
+            if not self.bridge.graph_wanted:
+                return
+            topics = [t for t, _ in self.get_topic_names_and_types()]
+            pubs = {t: [node_name(i.node_namespace, i.node_name)
+                        for i in self.get_publishers_info_by_topic(t)] for t in topics}
+            subs = {t: [node_name(i.node_namespace, i.node_name)
+                        for i in self.get_subscriptions_info_by_topic(t)] for t in topics}
+            providers: dict[str, list[str]] = defaultdict(list)
+            for name, ns in self.get_node_names_and_namespaces():
+                try:
+                    offered = self.get_service_names_and_types_by_node(name, ns)
+                except Exception:  # gone between the two calls
+                    continue
+                for service, _ in offered:
+                    providers[service].append(node_name(ns, name))
+            self.bridge.publish_graph(build_graph(pubs, subs, providers))
+        except Exception as exc:  # the graph must not stop the node
+            self.diag.problem('internal_error', f'reading the ROS graph failed: {exc!r}',
+                              'ERROR')
 
     def _publish(self, m: ClientMessage) -> None:
         """Publish a client's message into ROS on its channel's topic, checked first

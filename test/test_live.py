@@ -35,17 +35,40 @@ from arm_sim.live import (
     CLIENT_CHANNELS,
     FRAMES,
     GOAL_CHANNEL,
+    PARAMETER_BOOL,
+    PARAMETER_BOOL_ARRAY,
+    PARAMETER_BYTE_ARRAY,
+    PARAMETER_DOUBLE,
+    PARAMETER_DOUBLE_ARRAY,
+    PARAMETER_INTEGER,
+    PARAMETER_INTEGER_ARRAY,
+    PARAMETER_NOT_SET,
+    PARAMETER_STRING,
+    PARAMETER_STRING_ARRAY,
     PUSH_CHANNEL,
+    Graph,
+    RosParam,
     Stamped,
     accepted_topic,
     arm_transforms,
+    build_graph,
     cdr_header,
     cdr_string,
     client_channel_refusal,
+    fill_message,
+    fill_value_msg,
+    foxglove_value,
     joint_positions,
+    message_to_json,
+    node_name,
+    param_name,
     pose_from_json,
     pose_refusal,
     resolved_client_topics,
+    ros_param_from_msg,
+    ros_value,
+    service_schemas,
+    split_param_name,
     stamp_refusal,
     text_refusal,
 )
@@ -349,6 +372,116 @@ def decode_frame_transforms(b: bytes) -> list[dict]:
                         t[key][k - 1] = x
         out.append(t)
     return out
+
+
+# -------------------------------------------------------- parameters, services, graph
+def test_parameter_names_are_foxglove_bridges_node_dot_parameter():
+    assert param_name('/simulator', 'pause_at') == '/simulator.pause_at'
+    assert split_param_name('/simulator.pause_at') == ('/simulator', 'pause_at')
+    assert split_param_name('/arm/sim.qos_overrides./tf.depth') == (
+        '/arm/sim', 'qos_overrides./tf.depth')
+    assert node_name('/', 'simulator') == '/simulator' and node_name('/arm', 'sim') == '/arm/sim'
+    for bad in ('pause_at', '/simulator', '/simulator.', 'simulator.pause_at', '/.x'):
+        with pytest.raises(ValueError, match='/<node>.<parameter>'):
+            split_param_name(bad)
+
+
+ROS_AND_FOXGLOVE = [
+    (RosParam(PARAMETER_BOOL, True), True, None),
+    (RosParam(PARAMETER_INTEGER, 7), 7, None),
+    (RosParam(PARAMETER_DOUBLE, 2.0), 2.0, 'float64'),
+    (RosParam(PARAMETER_STRING, 'real_time'), 'real_time', None),
+    (RosParam(PARAMETER_BYTE_ARRAY, b'\x00\xff'), b'\x00\xff', 'byte_array'),
+    (RosParam(PARAMETER_BOOL_ARRAY, [True, False]), [True, False], None),
+    (RosParam(PARAMETER_INTEGER_ARRAY, [1, -2]), [1, -2], None),
+    (RosParam(PARAMETER_DOUBLE_ARRAY, [1.0, 0.8]), [1.0, 0.8], 'float64_array'),
+    (RosParam(PARAMETER_STRING_ARRAY, ['joint1', 'joint2']), ['joint1', 'joint2'], None),
+    (RosParam(PARAMETER_NOT_SET), None, None),
+]
+
+
+@pytest.mark.parametrize('ros, value, hint', ROS_AND_FOXGLOVE)
+def test_parameter_values_map_both_ways_through_the_ros_message(ros, value, hint):
+    from rcl_interfaces.msg import ParameterValue
+
+    assert foxglove_value(ros) == (value, hint)
+    assert ros_value(value, hint, ros.type) == ros
+    msg = fill_value_msg(ParameterValue(), ros)  # the real message takes it
+    assert ros_param_from_msg(msg) == ros
+    assert ros_param_from_msg(deserialize_message(serialize_message(msg), ParameterValue)) == ros
+
+
+def test_a_whole_number_set_on_a_double_parameter_is_a_double():
+    assert ros_value(1000, None, PARAMETER_DOUBLE) == RosParam(PARAMETER_DOUBLE, 1000.0)
+    assert ros_value(1000, 'float64') == RosParam(PARAMETER_DOUBLE, 1000.0)
+    assert ros_value(1000, None, PARAMETER_INTEGER) == RosParam(PARAMETER_INTEGER, 1000)
+    assert ros_value([1, 2], None, PARAMETER_DOUBLE_ARRAY) == RosParam(
+        PARAMETER_DOUBLE_ARRAY, [1.0, 2.0])
+    assert ros_value([1, 2.5]) == RosParam(PARAMETER_DOUBLE_ARRAY, [1.0, 2.5])
+    assert ros_value([], None, PARAMETER_STRING_ARRAY) == RosParam(PARAMETER_STRING_ARRAY, [])
+    assert ros_value('AAE=', 'byte_array') == RosParam(PARAMETER_BYTE_ARRAY, b'\x00\x01')
+    # A type the node refuses is still sent: the node's reason is the one reported.
+    assert ros_value('x', None, PARAMETER_DOUBLE) == RosParam(PARAMETER_STRING, 'x')
+
+
+@pytest.mark.parametrize('value, current, reason', [
+    ({'a': 1}, None, 'hold no maps'),
+    ([1, 'a'], None, 'one kind'),
+    ([], PARAMETER_DOUBLE, 'empty array'),
+    (2**63, PARAMETER_INTEGER, 'beyond a 64-bit integer'),
+    ([2**63], None, 'beyond a 64-bit integer'),
+])
+def test_values_no_ros_parameter_holds_are_refused_with_the_reason(value, current, reason):
+    with pytest.raises(ValueError, match=reason):
+        ros_value(value, None, current)
+
+
+def test_service_schemas_are_the_srv_halves_with_their_definitions():
+    request, response = service_schemas('std_srvs/srv/Trigger')
+    assert request.strip() == '' and 'bool success' in response
+    assert 'string message' in response
+    request, response = service_schemas('std_srvs/srv/SetBool')
+    assert 'bool data' in request and 'bool success' in response
+    request, _ = service_schemas('rcl_interfaces/srv/SetParameters')
+    # The types it uses follow, as in a ros2msg schema.
+    assert 'MSG: rcl_interfaces/Parameter\n' in request
+    assert 'MSG: rcl_interfaces/ParameterValue\n' in request
+    with pytest.raises(LookupError, match='<pkg>/srv/<Type>'):
+        service_schemas('std_msgs/msg/String')
+    with pytest.raises(LookupError, match='no .srv file'):
+        service_schemas('std_srvs/srv/NoSuch')
+
+
+def test_service_requests_and_responses_in_json():
+    from std_srvs.srv import SetBool, Trigger
+
+    assert fill_message(SetBool.Request(), {'data': True}).data is True
+    with pytest.raises(ValueError, match='nope: no such field'):
+        fill_message(SetBool.Request(), {'nope': 1})
+    with pytest.raises(ValueError, match='must be a JSON object'):
+        fill_message(SetBool.Request(), [1])
+    assert message_to_json(Trigger.Response(success=True, message='reset')) == {
+        'success': True, 'message': 'reset'}
+    state = JointState(name=['a'], position=[0.5])
+    state.header.frame_id = 'base_link'
+    doc = message_to_json(state)
+    assert doc['header']['frame_id'] == 'base_link' and doc['position'] == [0.5]
+    assert json.dumps(doc)
+
+
+def test_the_connection_graph_is_sorted_merged_and_compares_by_content():
+    g = build_graph({'/joint_states': ['/simulator'], '/clock': ['/simulator'],
+                     '/lonely': []},
+                    {'/joint_states': ['/live', '/controller', '/live']},
+                    {'/simulator/reset': ['/simulator']})
+    assert g == Graph(published=(('/clock', ('/simulator',)),
+                                 ('/joint_states', ('/simulator',))),
+                      subscribed=(('/joint_states', ('/controller', '/live')),),
+                      services=(('/simulator/reset', ('/simulator',)),))
+    same = build_graph({'/clock': ['/simulator'], '/joint_states': ['/simulator']},
+                       {'/joint_states': ['/controller', '/live']},
+                       {'/simulator/reset': ['/simulator']})
+    assert same == g and build_graph({}, {}, {}) != g
 
 
 # ---------------------------------------------------------------------- the live suite

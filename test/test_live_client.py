@@ -2,7 +2,9 @@
 ``FoxgloveClient`` (test/js/client.js), which offers only ``foxglove.websocket.v1``, gets
 the simulator's joint states, publishes a goal and pushes the arm (a WrenchStamped on
 /simulator/push, as Foxglove's Publish panel sends it); a client offering something else is
-refused with the reason in the node's log."""
+refused with the reason in the node's log. The same client then gets and sets the simulator's
+parameters (a read-only one refused with the node's reason), calls /simulator/reset, gets the
+connection graph and /rosout, as foxglove_bridge offers them."""
 
 from __future__ import annotations
 
@@ -19,8 +21,10 @@ import pytest
 from conftest import statuses, values
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, WrenchStamped
-from rclpy.serialization import deserialize_message
+from rcl_interfaces.msg import Log, ParameterEvent
+from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
 
 from arm_sim.launcher import config_file
 
@@ -109,6 +113,7 @@ def test_a_stock_foxglove_client_gets_the_simulators_joint_states_publishes_a_go
     states = ros.collect(JointState, 'joint_states')
     goals = ros.collect(PoseStamped, 'goal_pose')
     pushes = ros.collect(WrenchStamped, 'simulator/push')
+    events = ros.collect(ParameterEvent, '/parameter_events')
     diags = ros.collect(DiagnosticArray, '/diagnostics')
     live = launch('live', params={'port': 0})
     sim = launch('simulator', params_file=CONFIG, params={'timing_mode': 'real_time'})
@@ -126,8 +131,9 @@ def test_a_stock_foxglove_client_gets_the_simulators_joint_states_publishes_a_go
         assert client.proc.poll() is None, (client.events, client.stderr())
         assert client.of('open')[0]['protocol'] == 'foxglove.websocket.v1'
         info = client.of('serverInfo')[0]['info']
-        assert info['name'] == 'arm_sim' and {'clientPublish', 'time'} <= set(
-            info['capabilities'])
+        assert info['name'] == 'arm_sim' and {
+            'clientPublish', 'time', 'parameters', 'parametersSubscribe', 'services',
+            'connectionGraph'} <= set(info['capabilities'])
         ch = channels()['/joint_states']
         assert (ch['encoding'], ch['schemaEncoding'], ch['schemaName']) == (
             'cdr', 'ros2msg', 'sensor_msgs/msg/JointState')
@@ -181,10 +187,14 @@ def test_a_stock_foxglove_client_gets_the_simulators_joint_states_publishes_a_go
                  p.header.frame_id) for p in pushes} == {(0.0, -30.0, 0.0, 0.0, '')}
         ros.wait_for(lambda: 'live push [0.0, -30.0] N' in sim.output(), timeout=10,
                      what='the simulator to take the push')
-        assert 'push published on /simulator/push: wrench.force (0, -30, 0) N' in live.output()
+        # The node logs it after publishing: the simulator may take it first.
+        ros.wait_for(lambda: 'push published on /simulator/push: wrench.force (0, -30, 0) N'
+                     in live.output(), timeout=10, what="the node's log of the push")
         ros.wait_for(lambda: any(int(values(s).get('pushes_published', 0)) >= 1
                                  for s in statuses(diags, '/live', 'summary')),
                      timeout=10, what='pushes_published on /diagnostics')
+
+        _parameters_services_graph_and_rosout(ros, client, events, live)
         assert not client.of('error'), client.of('error')
     finally:
         client.close()
@@ -196,3 +206,91 @@ def test_a_stock_foxglove_client_gets_the_simulators_joint_states_publishes_a_go
     assert status == 400 and reason in body, body
     ros.wait_for(lambda: reason in live.output(), timeout=10, what='the refusal in the log')
     assert live.alive(), live.output()[-3000:]
+
+
+def _parameters_services_graph_and_rosout(ros, client: JsClient, events: list, live) -> None:
+    """getParameters / setParameters of the simulator's parameters (``/simulator.<name>``,
+    as foxglove_bridge names them): a get answers its values, a set of the writable
+    ``pause_at`` (a whole number for a double) changes it in ROS (the simulator's parameter
+    event) and is answered with the new value, a set of the read-only ``physics_step`` is
+    refused with the simulator's reason (a status message) and answered with the old value;
+    a call of /simulator/reset (std_srvs/srv/Trigger, CDR) is answered with success; the
+    connection graph names /joint_states with the simulator as its publisher and
+    /simulator/reset with it as provider; /rosout is a channel and brings log messages."""
+    def answer(request_id: str) -> dict:
+        found = ros.wait_for(lambda: [e for e in client.of('parameterValues')
+                                      if e['id'] == request_id], timeout=10,
+                             what=f'the parameterValues answering {request_id}')
+        return {p['name']: p for p in found[0]['parameters']}
+
+    client.send(cmd='subscribe', topic='/rosout')
+    client.send(cmd='getParameters', names=['/simulator.pause_at', '/simulator.timing_mode',
+                                            '/simulator.physics_step'], id='get1')
+    got = answer('get1')
+    assert got['/simulator.pause_at']['value'] == -1 and got['/simulator.pause_at'].get(
+        'type') == 'float64', got
+    assert got['/simulator.timing_mode']['value'] == 'real_time'
+    step = got['/simulator.physics_step']['value']
+
+    client.send(cmd='setParameters', id='set1', parameters=[
+        {'name': '/simulator.pause_at', 'value': 1000}])
+    assert answer('set1')['/simulator.pause_at']['value'] == 1000
+    ros.wait_for(lambda: any(e.node == '/simulator' and any(
+        p.name == 'pause_at' and p.value.double_value == 1000.0
+        for p in e.changed_parameters) for e in events), timeout=10,
+        what='pause_at changed in ROS')
+    client.send(cmd='getParameters', names=['/simulator.pause_at'], id='get2')
+    assert answer('get2')['/simulator.pause_at']['value'] == 1000
+
+    client.send(cmd='setParameters', id='set2', parameters=[
+        {'name': '/simulator.physics_step', 'value': 0.002, 'type': 'float64'}])
+    assert answer('set2')['/simulator.physics_step']['value'] == step
+    refusal = ros.wait_for(lambda: [e['status']['message'] for e in client.of('status')
+                                    if 'parameter /simulator.physics_step not set' in
+                                    e['status']['message']], timeout=10,
+                           what='the refusal of physics_step')[0]
+    assert 'read-only' in refusal or 'read only' in refusal, refusal
+
+    # /simulator/reset, from the advertised services (std_srvs/srv/Trigger, called in CDR).
+    def advertised() -> dict[str, dict]:
+        return {s['name']: s for e in client.of('advertiseServices') for s in e['services']}
+
+    reset = ros.wait_for(lambda: advertised().get('/simulator/reset'), timeout=10,
+                         what='/simulator/reset advertised')
+    assert reset['type'] == 'std_srvs/srv/Trigger', reset
+    client.send(cmd='callService', service='/simulator/reset', callId=7, encoding='cdr',
+                data=base64.b64encode(serialize_message(Trigger.Request())).decode())
+    done = ros.wait_for(lambda: [e for e in client.of('serviceCallResponse')
+                                 + client.of('serviceCallFailure')
+                                 if e.get('callId', e.get('failure', {}).get('callId')) == 7],
+                        timeout=15, what='the answer to /simulator/reset')[0]
+    assert done['event'] == 'serviceCallResponse', done
+    response = deserialize_message(base64.b64decode(done['data']), Trigger.Response)
+    assert response.success and response.message.startswith('reset to'), response
+
+    # The connection graph: /joint_states published by the simulator.
+    client.send(cmd='subscribeConnectionGraph')
+
+    def graph(key: str, ids: str) -> dict[str, set[str]]:
+        out: dict[str, set[str]] = {}
+        for e in client.of('connectionGraphUpdate'):
+            for item in e['graph'].get(key, []):
+                out[item['name']] = set(item[ids])
+        return out
+
+    ros.wait_for(lambda: '/simulator' in graph('publishedTopics', 'publisherIds').get(
+        '/joint_states', set()), timeout=10, what='the connection graph')
+    assert '/live' in graph('subscribedTopics', 'subscriberIds')['/joint_states']
+    ros.wait_for(lambda: '/simulator' in graph('advertisedServices', 'providerIds').get(
+        '/simulator/reset', set()), timeout=10, what='/simulator/reset in the graph')
+
+    # /rosout: a Log channel (rcl_interfaces/msg/Log), and the reset's own log line.
+    def logs() -> list[Log]:
+        return [deserialize_message(base64.b64decode(e['data']), Log)
+                for e in client.of('message') if e['topic'] == '/rosout']
+
+    ros.wait_for(lambda: any(m.name == 'simulator' and m.msg.startswith('reset to')
+                             for m in logs()), timeout=10, what='the reset on /rosout')
+    # The node logs the call after answering it.
+    ros.wait_for(lambda: 'client 1: called /simulator/reset: {"success": true' in live.output(),
+                 timeout=10, what="the node's log of the call")

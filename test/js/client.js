@@ -11,6 +11,12 @@
 //     (any topic: the test advertises /goal_pose and /simulator/push; the reply
 //     {"event": "advertised", "topic": ..., "channelId": N} names the channel to publish on)
 //   {"cmd": "publish", "channelId": 1, "text": "{...}"}   (clientPublish, UTF-8 payload)
+//   {"cmd": "getParameters", "names": ["/simulator.pause_at"], "id": "g1"}
+//   {"cmd": "setParameters", "parameters": [{"name": ..., "value": ..., "type": ...}], "id": "s1"}
+//   {"cmd": "subscribeParameters", "names": [...]}
+//   {"cmd": "callService", "service": "/simulator/reset", "callId": 1, "encoding": "cdr",
+//    "data": "<base64>"}   (the service id is looked up by name in advertiseServices)
+//   {"cmd": "subscribeConnectionGraph"}
 //   {"cmd": "close"}
 "use strict";
 const readline = require("readline");
@@ -44,6 +50,20 @@ client.on("advertise", (chans) => {
   for (const ch of chans) channels.set(ch.topic, ch);
   emit({ event: "advertise", channels: chans });
 });
+client.on("parameterValues", (m) =>
+  emit({ event: "parameterValues", id: m.id ?? null, parameters: m.parameters }));
+const services = new Map(); // name -> service
+client.on("advertiseServices", (list) => {
+  for (const sv of list) services.set(sv.name, sv);
+  emit({ event: "advertiseServices", services: list });
+});
+client.on("connectionGraphUpdate", (g) => emit({ event: "connectionGraphUpdate", graph: g }));
+client.on("serviceCallResponse", (r) => {
+  const data = Buffer.from(r.data.buffer, r.data.byteOffset, r.data.byteLength);
+  emit({ event: "serviceCallResponse", serviceId: r.serviceId, callId: r.callId,
+         encoding: r.encoding, data: data.toString("base64") });
+});
+client.on("serviceCallFailure", (f) => emit({ event: "serviceCallFailure", failure: f }));
 client.on("time", (t) => emit({ event: "time", timestamp: t.timestamp.toString() }));
 client.on("message", (m) => {
   const data = Buffer.from(m.data.buffer, m.data.byteOffset, m.data.byteLength);
@@ -68,6 +88,20 @@ readline.createInterface({ input: process.stdin }).on("line", (line) => {
   } else if (c.cmd === "publish") {
     client.sendMessage(c.channelId, new TextEncoder().encode(c.text));
     emit({ event: "published", channelId: c.channelId });
+  } else if (c.cmd === "getParameters") {
+    client.getParameters(c.names, c.id);
+  } else if (c.cmd === "setParameters") {
+    client.setParameters(c.parameters, c.id);
+  } else if (c.cmd === "subscribeParameters") {
+    client.subscribeParameterUpdates(c.names);
+  } else if (c.cmd === "callService") {
+    const sv = services.get(c.service);
+    if (!sv) return emit({ event: "error", message: `no service ${c.service}` });
+    client.sendServiceCallRequest({ serviceId: sv.id, callId: c.callId, encoding: c.encoding,
+                                    data: new Uint8Array(Buffer.from(c.data, "base64")) });
+    emit({ event: "called", service: c.service, callId: c.callId });
+  } else if (c.cmd === "subscribeConnectionGraph") {
+    client.subscribeConnectionGraph();
   } else if (c.cmd === "close") {
     client.close();
   }
