@@ -179,7 +179,7 @@ SIM_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('disturbance_file', 'string', '',
               'Pushes and faults at exact simulated times: a YAML scenario (see '
               'config/disturbances/example.yaml; times on the physics_step grid); empty = '
-              'none', read_only=True),
+              'none', read_only=True, allow_empty=True),
     ParamSpec('push_duration', 'double', 0.1,
               'How long a live push on simulator/push is held (a pulse from the next control '
               'period); a whole multiple of physics_step', 's', minimum=0.0, strict_min=True,
@@ -262,7 +262,13 @@ class SimulatorNode(Node):
                               encoder_resolution=p['encoder_resolution'][:n],
                               sensing_delay=p['sensing_delay'], seed=p['noise_seed'])
         try:
-            friction = JointFriction.from_params(_static_default(robot), n)
+            if self.geared:  # its state is the motor shaft: the robot's friction is not its
+                if any(robot['coulomb_friction']) or any(robot['static_friction']):
+                    raise ValueError('model single_link_geared takes no coulomb_friction or '
+                                     'static_friction (its damping is geared.*)')
+                friction = None
+            else:
+                friction = JointFriction.from_params(_static_default(robot), n)
             disturbances = (Disturbances.load(p['disturbance_file'], n=n,
                                               joint_names=robot['joint_names'][:n],
                                               physics_step_ns=step_ns,
