@@ -187,6 +187,18 @@ def test_check_grades_the_example_its_sign_flipped_copy_and_arm_sims_controller(
     assert own.returncode == 0, own.stdout + own.stderr
     assert '2 of 2 scenarios passed' in own.stdout
 
+    # The same controller with plain PD (the demo's gains): the fast line fails, and the
+    # report says why (the tip leaves the line by far more than the threshold).
+    pd, doc, xml = _check(tmp_path, 'pd', '--scenario', 'line_fast', '--',
+                          sys.executable, '-m', 'arm_control.controller_node',
+                          '--ros-args', '--params-file', str(ROOT / 'config' / 'arm.yaml'),
+                          '-p', 'law:=pd')
+    assert pd.returncode == 1, pd.stdout + pd.stderr
+    fast = doc['scenarios'][0]
+    dev = next(m for m in fast['metrics'] if m['name'] == 'line_deviation')
+    assert not fast['passed'] and not dev['passed'] and dev['value'] > 5 * dev['threshold']
+    assert 'line_deviation' in xml.find('.//failure').get('message')
+
 
 #: A scenario per behaviour of bad.py (``bad.py scenario`` takes its behaviour from the
 #: scenario's name, $ARM_SIM_CHECK_SCENARIO): a short move, budgets short where the

@@ -256,7 +256,11 @@ def test_goals_succeed_or_fail_with_the_result_codes(ros, arm):
     status, code, text = outcome(ok)
     assert (status, code) == (GoalStatus.STATUS_SUCCEEDED, follow.SUCCESSFUL), text
     assert text.startswith('goal reached at t='), text
-    assert np.abs(np.array(states[-1].position) - target).max() <= 1e-3
+    # The state the controller judged it on (its stamp is in the text) is within 1e-3 rad.
+    t_reached = float(text.split('goal reached at t=')[1].split(' s')[0])
+    judged = [m for m in states if abs(stamp_of(m) - t_reached) < 5e-4]
+    assert judged, f'no state at t={t_reached}'
+    assert np.abs(np.array(judged[-1].position) - target).max() <= 1e-3
     # Feedback: one a command (depth 10: a busy reader may miss some), desired - actual.
     ros.wait_for(lambda: ok.feedback, what='feedback')
     for fb in (m.feedback for m in ok.feedback):
@@ -313,7 +317,8 @@ def test_a_canceled_goal_holds_the_arm_where_it_is(ros, arm):
 
     from arm_sim.client import stamp_of
     states, ctrl, client = arm
-    slow = Sent(ros, client, goal_msg([(30.0, [0.3, 0.6], [0, 0], [0, 0])]))
+    # 1000 s of motion: the cancel comes mid-motion however fast lockstep runs meanwhile.
+    slow = Sent(ros, client, goal_msg([(1000.0, [0.3, 0.6], [0, 0], [0, 0])]))
     ros.wait_for(lambda: len(slow.feedback) > 50, what='the goal to run')
     cancel = slow.handle.cancel_goal_async()
     ros.wait_for(cancel.done, what='the cancel response')
@@ -321,7 +326,7 @@ def test_a_canceled_goal_holds_the_arm_where_it_is(ros, arm):
     status, code, text = outcome(slow)
     assert (status, code) == (GoalStatus.STATUS_CANCELED, follow.SUCCESSFUL), text
     t_cancel = float(text.split('canceled at t=')[1].split(' s')[0])
-    assert t_cancel < 20.0, 'canceled mid-motion'
+    assert t_cancel < 1000.0, 'canceled mid-motion'
     held_after(ros, states, ctrl, t_cancel)
     assert stamp_of(states[-1]) > t_cancel
 
@@ -332,7 +337,7 @@ def test_goals_and_topic_trajectories_preempt_each_other(ros, arm):
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
     states, ctrl, client = arm
-    first = Sent(ros, client, goal_msg([(30.0, [0.3, 0.6], [0, 0], [0, 0])]))
+    first = Sent(ros, client, goal_msg([(1000.0, [0.3, 0.6], [0, 0], [0, 0])]))
     ros.wait_for(lambda: first.feedback, what='the first goal to run')
     second = Sent(ros, client, goal_msg([(0.5, [0.1, 0.9])], goal_tolerance={
         'joint1': 1e-3, 'joint2': 1e-3}, goal_time=2.0))
@@ -341,8 +346,9 @@ def test_goals_and_topic_trajectories_preempt_each_other(ros, arm):
     assert text.startswith('preempted by goal '), text
     status, code, text = outcome(second)
     assert (status, code) == (GoalStatus.STATUS_SUCCEEDED, follow.SUCCESSFUL), text
-    # A trajectory on the topic preempts a goal ...
-    third = Sent(ros, client, goal_msg([(30.0, [0.3, 0.6], [0, 0], [0, 0])]))
+    # A trajectory on the topic preempts a goal (1000 s long: still running when it comes,
+    # however fast lockstep runs) ...
+    third = Sent(ros, client, goal_msg([(1000.0, [0.3, 0.6], [0, 0], [0, 0])]))
     ros.wait_for(lambda: third.feedback, what='the third goal to run')
     pub = ros.publisher(JointTrajectory, 'arm_controller/joint_trajectory')
     topic = JointTrajectory(joint_names=list(JOINTS), points=[JointTrajectoryPoint(
@@ -356,8 +362,8 @@ def test_goals_and_topic_trajectories_preempt_each_other(ros, arm):
     # ... and a goal replaces the topic's trajectory (a slow one, then a set point goal).
     verdicts = ros.collect(DiagnosticStatus, 'arm_controller/trajectory_status')
     topic.points = [JointTrajectoryPoint(positions=[0.3, 0.6])]
-    topic.points[0].time_from_start.sec = 30
-    ros.wait_for(lambda: any('over 30.000 s' in v.message for v in verdicts)
+    topic.points[0].time_from_start.sec = 1000
+    ros.wait_for(lambda: any('over 1000.000 s' in v.message for v in verdicts)
                  or pub.publish(topic), what='the slow topic trajectory to be accepted')
     last = Sent(ros, client, goal_msg([(0.0, [0.0, 1.1])], goal_tolerance={
         'joint1': 1e-4, 'joint2': 1e-4}, goal_time=3.0))
