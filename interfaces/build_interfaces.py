@@ -407,7 +407,7 @@ def state(pkg: str, prefix: pathlib.Path) -> tuple[str, str]:
 def build_package(pkg: str, prefix: pathlib.Path, jobs: int, keep: bool) -> None:
     digest = inputs_digest(pkg)
     t0 = time.monotonic()
-    build = pathlib.Path(tempfile.mkdtemp(prefix=f'arm_sim_{pkg}_'))
+    build = pathlib.Path(tempfile.mkdtemp(prefix=f'rosidl_build_{pkg}_'))
     try:
         gen = generate(pkg, prefix, build, jobs)
         log(f'{pkg}: generated sources in {time.monotonic() - t0:.0f} s')
