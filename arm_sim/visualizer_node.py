@@ -174,6 +174,7 @@ class VisualizerNode(Node):
         self.markers_pub = self.create_publisher(MarkerArray, 'markers', 10)
         self.publish_tf = bool(p['publish_tf'])
         self.tf_sent = 0
+        self.tf_dropped = 0  # held transforms pushed out while the gate was shut
         self.tf_held: deque[TFMessage] = deque(maxlen=TF_DEPTH)  # while the gate is shut
         gated = [self.markers_pub]
         if self.publish_tf:
@@ -237,6 +238,12 @@ class VisualizerNode(Node):
                     self.tf_pub.publish(tf)
                     self.tf_sent += 1
                 else:  # sent when the gate opens (the timer), in order
+                    if len(self.tf_held) == self.tf_held.maxlen:  # the oldest goes: counted
+                        self.tf_dropped += 1
+                        self.diag.problem('tf_dropped', f'{self.tf_dropped} transform(s) '
+                                          'dropped while waiting for wait_for_nodes (at most '
+                                          f'{self.tf_held.maxlen} are held)',
+                                          tf_dropped=self.tf_dropped)
                     self.tf_held.append(tf)
         except Exception as exc:  # never die on a message
             self.diag.problem('internal_error', f'joint_states handling failed: {exc!r}',
@@ -307,7 +314,8 @@ class VisualizerNode(Node):
         self.markers_pub.publish(markers_message(shapes, header))
         self.sent += 1
         self.diag.set('OK', 'showing the arm', markers_sent=self.sent,
-                      trail_points=len(self.trail), tf_sent=self.tf_sent)
+                      trail_points=len(self.trail), tf_sent=self.tf_sent,
+                      tf_dropped=self.tf_dropped)
 
 
 def main(args: list[str] | None = None) -> int:

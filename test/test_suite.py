@@ -296,11 +296,17 @@ def test_a_goal_sent_right_after_a_controller_restart_is_executed(ros, launch):
     for k, target in enumerate((PF, PS, PF)):
         old = [p for p in launch.procs if p.name == 'controller' and p.alive()][0]
         assert old.stop() == 0
+        stamp_then = stamp(states[-1])  # lockstep: time stands still until it answers
         launch('controller', params_file=CONFIG)
         n = len(diags)
         goals.publish(goal(*target))  # at once: the new controller may not be matched yet
         outcome = ros.wait_for(lambda: planner_events(('plan_accepted', 'goal_'), n),
                                timeout=30, what=f'goal {k} accepted or refused')[0]
+        if outcome['event'] == 'goal_unsent' and stamp(states[-1]) == stamp_then:
+            # 10 sends over 10 s reached no controller, and time never moved: the new
+            # controller never heard the simulator either (it answers every state).
+            pytest.xfail('Fast DDS left the restarted controller deaf to its peers '
+                         '(eProsima/Fast-DDS#5053; docs/limitations.md)')
         assert outcome['event'] == 'plan_accepted', outcome
         start = float(outcome['start_time'])
         end = trajs[-1].points[-1].time_from_start

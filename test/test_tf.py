@@ -13,6 +13,7 @@ import io
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -269,13 +270,19 @@ def test_visualizer_publishes_tf_per_state_and_tf_static_once_and_the_bag_has_th
         sent[k * PERIOD_NS] = qs[k % N_STATES]
         states.publish(msg)
 
-    # A state per spin until this test's subscription gets transforms (the first ones may
-    # go out before it matched), then N_STATES more, each of which must arrive.
+    # A state every 0.2 s until this test's subscription gets transforms (the first ones
+    # may go out before it matched; the visualizer holds at most 1000 while its gate waits
+    # for the recorder, so they come slowly: none is dropped however long the gate takes),
+    # then N_STATES more, each of which must arrive.
     k = 0
-    while not tfs and k < 5000:
+    end = time.monotonic() + 30
+    while not tfs and time.monotonic() < end:
         publish(k)
         k += 1
-        ros.executor.spin_once(timeout_sec=0.01)
+        pause = time.monotonic() + 0.2  # a publisher's pace, not a wait on an outcome
+        while not tfs and time.monotonic() < pause:
+            ros.executor.spin_once(timeout_sec=0.02)
+    assert tfs, 'no transforms within 30 s'
     first = k
     for _ in range(N_STATES):
         publish(k)
