@@ -103,7 +103,13 @@ def dependencies(package: str, text: str) -> list[str]:
 def schema_text(type_name: str) -> str:
     """The ``ros2msg`` schema of ``type_name`` as rosbag2 stores it in MCAP."""
     pkg, _ = _split(type_name)
-    main = definition_file(type_name).read_text()
+    return expanded_schema(pkg, definition_file(type_name).read_text())
+
+
+def expanded_schema(pkg: str, main: str) -> str:
+    """``main`` (a definition of package ``pkg``: a .msg text, or one half of a .srv)
+    followed by a block per definition it uses, each once, as ``ros2msg`` schemas hold
+    them (a line of ``=``, ``MSG: <pkg>/<Type>``, its text)."""
     blocks: list[str] = []
     seen: set[str] = set()
     queue = dependencies(pkg, main)

@@ -70,10 +70,8 @@ from typing import Any, cast
 
 from arm_bag.cdr import Cursor
 from arm_bag.msgdefs import (
-    SEPARATOR,
     MessageDefinitionError,
-    definition_file,
-    dependencies,
+    expanded_schema,
     schema_text,
     share_dirs,
 )
@@ -674,18 +672,7 @@ def _find_srv(type_name: str) -> Path:
 def _expanded(package: str, main: str) -> str:
     """``main`` (a .msg text, or one half of a .srv) followed by the definitions it uses,
     as a ``ros2msg`` schema (:func:`arm_bag.msgdefs.schema_text`'s layout)."""
-    blocks: list[str] = []
-    seen: set[str] = set()
-    todo = dependencies(package, main)
-    while todo:
-        dep = todo.pop(0)
-        if dep in seen:
-            continue
-        seen.add(dep)
-        text = definition_file(dep).read_text()
-        blocks.append(f'{SEPARATOR}\nMSG: {dep}\n{text}')
-        todo.extend(d for d in dependencies(dep.split('/')[0], text) if d not in seen)
-    return '\n'.join([main.strip('\n')] + [b.rstrip('\n') for b in blocks]) + '\n'
+    return expanded_schema(package, main.lstrip('\n'))
 
 
 def service_schemas(type_name: str) -> tuple[str, str]:
