@@ -42,7 +42,7 @@ from arm_sim.check.grade import ScenarioResult, grade
 from arm_sim.check.suite import PERIOD, Scenario, Suite
 from arm_sim.client import SuiteClient, SuiteError, goal_refusal
 from arm_sim.demo import Demo
-from arm_sim.launcher import NodeProcess, node_env
+from arm_sim.launcher import NodeProcess, node_env, remove_stale_shm
 
 REFERENCE_TOPIC = 'check/reference'
 REFERENCE_REMAPS = {'__node': 'check_reference',
@@ -158,6 +158,7 @@ class ScenarioRun(Demo):
         self.controller: ControllerProcess | None = None
         self.client: SuiteClient | None = None
         self.deadline = math.inf  # wall (monotonic) end of the scenario's budget
+        self.waiting_for = 'the suite to start'  # what the current wait waits for
         self.commands = 0
         self.bad_command: str | None = None
         self.t_end = math.nan
@@ -206,17 +207,19 @@ class ScenarioRun(Demo):
                                  f'{tail(self.controller.output())}')
         if time.monotonic() > self.deadline:
             budget = self.scenario.budget
-            if not self.commands:
+            if not self.commands and t < PERIOD / 2:  # time never left the start
                 raise ScenarioFailed(f'no commands on effort_controller/commands within the '
                                      f'wall-clock budget of {budget:g} s (simulated time '
                                      f'stood at t = {t:.2f} s)')
             goal = '' if math.isnan(self.t_end) else f' of {self.t_end:.2f} s'
             raise ScenarioFailed(f'too slow: simulated time reached t = {t:.2f} s{goal} '
                                  f'within the wall-clock budget of {budget:g} s '
-                                 f'({self.commands} commands received)')
+                                 f'({self.commands} commands received; waiting for '
+                                 f'{self.waiting_for})')
 
     def _wait(self, condition: Callable[[], object], what: str) -> None:
         assert self.client is not None
+        self.waiting_for = what
         timeout = START_WAIT if math.isinf(self.deadline) else \
             max(self.deadline - time.monotonic(), 0.0) + 5.0
         self.client.spin_until(condition, timeout, what, self._watch)
@@ -384,6 +387,11 @@ def run_suite(suite: Suite, out: Path, domain_id: int, command: Sequence[str] | 
     for k, sc in enumerate(suite.scenarios, 1):
         echo(f'[{k}/{n}] {sc.name}: {sc.description}' if sc.description else
              f'[{k}/{n}] {sc.name}')
+        # Fast DDS files of processes a scenario had to kill would be found by the next
+        # scenario's on the same domain (stale ports leave a new participant deaf).
+        removed = remove_stale_shm()
+        if removed:
+            echo(f'    removed {len(removed)} stale Fast DDS shared-memory file(s)')
         res = ScenarioRun(sc, out / sc.name, domain_id, command, echo).run()
         verdict = 'pass' if res.passed else 'FAIL: ' + '; '.join(res.failures())
         echo(f'    {verdict}  ({res.wall:.1f} s wall, {res.sim_time:.2f} s simulated)')
