@@ -38,7 +38,7 @@ def validate_command(data: Sequence[float], n: int) -> np.ndarray:
     bad = [i for i, v in enumerate(values) if not math.isfinite(v)]
     if bad:
         raise CommandError(f'effort command has non-finite values at index {bad}: '
-                           f'{list(values)}')
+                           f'{values.tolist()}')
     return values
 
 

@@ -487,7 +487,8 @@ class SimulatorNode(Node):
         try:
             values = validate_command(msg.data, self.n)
         except CommandError as exc:
-            self.diag.problem('rejected_command', f'{exc}; keeping the last good command')
+            self.diag.problem('rejected_command', f'{exc}; keeping the last good command',
+                              refused=str(exc))
             return
         now = time.monotonic_ns()
         k = self.keeper

@@ -195,9 +195,10 @@ BAD_SUITE = {
 BAD_REASONS = {
     'silent': ['no commands on effort_controller/commands within the wall-clock budget '
                'of 2 s'],
-    'nan': ['bad command: command 1 (at simulated t = 0.00 s) is not finite: [nan, nan]'],
-    'wrong_length': ['bad command: command 1 (at simulated t = 0.00 s) has 3 values for '
-                     'the 2 joints of joint_states'],
+    'nan': ['bad command: at simulated t = 0.00 s: effort command has non-finite values '
+            'at index [0, 1]: [nan, nan]'],
+    'wrong_length': ['bad command: at simulated t = 0.00 s: effort command must have 2 '
+                     'values, got 3'],
     'crash': ['the controller exited with code 1 at simulated t = 0.00 s', 'on purpose'],
     'slow': ['too slow: simulated time reached t = ', 'within the wall-clock budget of 3 s'],
 }

@@ -38,6 +38,7 @@ import yaml
 
 from arm_bag.topics import DEFAULT_TOPICS
 from arm_common.process import PARENT_ENV
+from arm_dynamics.simulation import CommandError, validate_command
 from arm_sim.check.grade import ScenarioResult, grade
 from arm_sim.check.suite import PERIOD, Scenario, Suite
 from arm_sim.client import SuiteClient, SuiteError, goal_refusal
@@ -168,15 +169,11 @@ class ScenarioRun(Demo):
         self.commands += 1
         if self.bad_command is not None:
             return
-        data = list(msg.data)
         t = max(self.client.sim_time, 0.0) if self.client else 0.0
-        n = len(self.q0)
-        if len(data) != n:
-            self.bad_command = (f'command {self.commands} (at simulated t = {t:.2f} s) has '
-                                f'{len(data)} values for the {n} joints of joint_states')
-        elif not all(math.isfinite(v) for v in data):
-            self.bad_command = (f'command {self.commands} (at simulated t = {t:.2f} s) is '
-                                f'not finite: {data}')
+        try:
+            validate_command(msg.data, len(self.q0))
+        except CommandError as exc:  # the simulator's own check: the same words
+            self.bad_command = f'at simulated t = {t:.2f} s: {exc}'
 
     def _watch(self) -> None:
         """The alive check of every wait: a suite node that exited is the harness's
@@ -191,15 +188,12 @@ class ScenarioRun(Demo):
             raise ScenarioFailed(f'unstable: the simulator reports {e.kind} at simulated '
                                  f"t = {float(e.values.get('sim_time', t)):.2f} s and holds "
                                  f'the arm: {e.message}')
-        rejected = c.events_of('simulator', 'rejected_command')
-        if rejected:
-            # The harness's own account names the command and its time: the command may
-            # reach the harness after the simulator's report of it.
-            c.spin_for(2.0, until=lambda: self.bad_command)
-            if self.bad_command:
-                raise ScenarioFailed(f'bad command: {self.bad_command}')
-            raise ScenarioFailed(f'bad command: the simulator rejected it: '
-                                 f'{rejected[-1].message}')
+        for e in c.events_of('simulator', 'rejected_command'):
+            # The simulator's account of the same check: whichever reaches the harness
+            # first gives the reason (the command may reach the simulator only).
+            reason = e.values.get('refused', e.message)
+            raise ScenarioFailed(f"bad command: at simulated t = "
+                                 f"{float(e.values.get('sim_time', t)):.2f} s: {reason}")
         if self.controller is not None and not self.controller.alive():
             raise ScenarioFailed(f'the controller exited with code '
                                  f'{self.controller.proc.returncode} at simulated t = '
