@@ -87,8 +87,10 @@ simulated time goes back or jumps during a planned motion (a restarted simulator
 the controller drops the motion, says so on arm_controller/trajectory_status with the state
 it now holds, and the planner plans the goal again from that state (event replanned). A
 trajectory is re-sent (up to 10 times, 1 s apart, planned again from the latest state)
-until the controller confirms it on arm_controller/trajectory_status; a refusal there, or
-no confirmation, is reported as goal_refused_by_controller or goal_unsent.
+until the controller confirms it on arm_controller/trajectory_status (every node that
+publishes there: arm-sim check's reference node and a controller under test both take it;
+after 3 sends the confirmations there are suffice); a refusal there, or no confirmation, is
+reported as goal_refused_by_controller or goal_unsent.
 
 Goals take effect at a simulated time that does not depend on how long planning took: on
 each goal the planner first holds the simulator's time (its hold_service, std_srvs/SetBool,
@@ -530,15 +532,18 @@ class PlannerNode(Node):
         sent = self.sent
         if sent is None or values.get('stamp_ns') != str(sent['stamp']):
             return
-        self.sent = None
-        self._release_if_idle()  # confirmed or refused: time may move on
         if _level(status.level) == 0:
-            self.active = (sent['stamp'], sent['goal'])
-            # Where the controller started it (a plan stamped 0 starts on arrival).
-            start = values.get('start_time') or f"{sent['stamp'] * 1e-9:.9f}"
-            self.diag.event('plan_accepted', f"controller: {status.message}",
-                            start_time=start)
+            # Every node that gives verdicts must have taken it (arm-sim check runs its
+            # reference node beside a controller that also takes trajectories): one that
+            # matched late is sent it again while time is held. After SAME_SENDS the
+            # verdicts there are are enough (a controller that died may still be counted).
+            sent['accepted'][status.name] = (values, status.message)
+            if len(sent['accepted']) < self.count_publishers(self.status_topic):
+                return
+            self._accept(sent)
             return
+        self.sent = None
+        self._release_if_idle()  # refused: time may move on
         self.active = None
         goal = sent['goal']
         if values.get('stale') == 'true' and sent['sends'] < SENDS and self.q is not None:
@@ -551,6 +556,17 @@ class PlannerNode(Node):
         self.diag.problem('goal_refused_by_controller', f'goal ({goal[0]:.4f}, '
                           f'{goal[1]:.4f}) m: the controller {status.message}',
                           goal_x=goal[0], goal_y=goal[1])
+
+    def _accept(self, sent: dict[str, Any]) -> None:
+        """The trajectory ``sent`` is taken: time may move on; it is the one in progress."""
+        self.sent = None
+        self._release_if_idle()
+        self.active = (sent['stamp'], sent['goal'])
+        values, message = next(iter(sent['accepted'].values()))
+        # Where the controller started it (a plan stamped 0 starts on arrival).
+        start = values.get('start_time') or f"{sent['stamp'] * 1e-9:.9f}"
+        self.diag.event('plan_accepted', f'controller: {message}', start_time=start,
+                        verdicts=len(sent['accepted']))
 
     def _replan_dropped(self, values: dict[str, str], message: str) -> None:
         active = self.active
@@ -585,6 +601,9 @@ class PlannerNode(Node):
         standstill that is the same plan."""
         sent = self.sent
         if sent is None or time.monotonic() - sent['at'] < CONFIRM_WAIT:
+            return
+        if sent['accepted'] and sent['sends'] >= SAME_SENDS:
+            self._accept(sent)  # taken by some, and the rest did not answer
             return
         if sent['sends'] >= SENDS:
             self.sent = None
@@ -650,7 +669,7 @@ class PlannerNode(Node):
         msg = trajectory_message(plan, self.joint_names, start_ns)
         self.traj_pub.publish(msg)
         self.sent = {'stamp': start_ns, 'at': time.monotonic(), 'sends': sends + 1,
-                     'goal': goal, 'msg': msg}
+                     'goal': goal, 'msg': msg, 'accepted': {}}
         sec, nanosec = divmod(start_ns, 1_000_000_000)
         self.path_pub.publish(path_message(plan, self.params['base_frame'],
                                            Time(sec=sec, nanosec=nanosec)))

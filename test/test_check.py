@@ -271,11 +271,6 @@ def test_the_examples_plugin_test_passes(tmp_path):
 
 @pytest.mark.process
 @pytest.mark.timeout(600)
-@pytest.mark.xfail(strict=False, reason=(
-    'known race, issue 24 left open: a controller that takes the planner\'s trajectory '
-    '(arm_sim\'s own) can miss it when it is matched after the planner sent it, because the '
-    'planner stops re-sending once check_reference confirms; the example controller, which '
-    'takes check/reference, is not affected'))
 def test_check_grades_arm_sims_own_controller_and_plain_pd(tmp_path):
     # arm_sim's own controller, as a user's command.
     own, doc, _ = _check(tmp_path, 'own', '--scenario', 'line_fast', '--scenario', 'push',
