@@ -49,8 +49,10 @@ sign(qd)`` plus a sign check; a stuck joint among moving ones is a constrained R
 free-free block of ``D`` from inverse-dynamics differences, ``1 + |F|`` calls per stage)
 plus a holding-torque check at its end; an event adds the re-integrations of its location
 (four or five). On the 2-R arm the slipping case calls its ``step_floats`` (``step``'s
-operations on floats: the same bits, without the arrays). :func:`friction_step_batch` steps
-``B`` arms, the event-free rows in one batched ``model.step``.
+operations on floats: the same bits, without the arrays), and the event-driven path runs on
+floats too (:class:`_Step2`: the arm's float RK4 and inverse dynamics, the same bits).
+:func:`friction_step_batch` steps ``B`` arms, the event-free rows in one batched
+``model.step`` (:mod:`arm_dynamics.batch` batches every mode, for the sweep's plants).
 
 References: H. Olsson, K. J. Åström, C. Canudas de Wit, M. Gäfvert, P. Lischinsky,
 "Friction models and friction compensation", European Journal of Control 4 (1998) 176-195
@@ -67,7 +69,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -87,6 +89,7 @@ _UNIT_ACCEL = 1024.0
 _MAX_ITERATIONS = 200
 
 _Kind = tuple[int, int]   # (0, i): joint i's velocity reached zero; (1, i): i breaks away
+_State = tuple[tuple[float, float], tuple[float, float]]   # ((q1, q2), (qd1, qd2)), 2-R
 
 
 def _friction_values(name: str, value: object, n: int) -> tuple[float, ...]:
@@ -299,7 +302,8 @@ def friction_step(model: Any, q, qd, tau, dt: float, stuck, friction: JointFrict
                     break
             else:
                 return q.copy(), qd.copy(), _ones(n, dtype=bool), 0.0
-    return _Step(model, tau, friction, lock).run(q, qd, dt)
+    step = _Step2 if n == 2 and getattr(model, '_tau_float', None) is not None else _Step
+    return step(model, tau, friction, lock).run(q, qd, dt)
 
 
 _ndarray, _array, _bools, _ones = np.ndarray, np.array, np.zeros, np.ones
@@ -596,6 +600,183 @@ class _Step:
         new[locked] = 0.0
         lost = 0.5 * (qd @ d @ qd - new @ d @ new)
         return new, max(float(lost), 0.0)
+
+
+def _pairs(q: np.ndarray, qd: np.ndarray) -> _State:
+    """A 2-R state (q, qd) (2,) arrays as a pair of float pairs."""
+    (x1, x2), (v1, v2) = q.tolist(), qd.tolist()
+    return (x1, x2), (v1, v2)
+
+
+class _Step2(_Step):
+    """:class:`_Step` on the 2-R arm (:class:`~arm_dynamics.two_link.TwoLinkArm`), on
+    plain floats: the state a pair of float pairs, the arm's float RK4 (``_step_float``,
+    what its ``step`` runs for one state) and float inverse dynamics (``_tau_float``, what
+    its ``inverse_dynamics`` runs); :meth:`run` is :meth:`_Step.run`'s loop line for line,
+    :meth:`_advance` :meth:`_Step.advance` with :func:`~arm_dynamics.integrate.rk4_step`'s
+    operations element by element, :meth:`_accel` :meth:`_Step.reduced`'s: the same bits
+    without the (2,) arrays. :meth:`_Step.decide` and :meth:`_Step.locate` are shared. A
+    brake, or a non-finite state, takes :class:`_Step`'s own methods (which refuse a
+    non-finite state, as before)."""
+
+    def __init__(self, model: Any, tau: np.ndarray, friction: JointFriction,
+                 lock: np.ndarray | None) -> None:
+        super().__init__(model, tau, friction, lock)
+        self.inverse = model._tau_float
+        self.rk4 = model._step_float
+
+    def _accel(self, q1: float, q2: float, v1: float, v2: float, t1: float, t2: float,
+               j: int) -> tuple[float, float, float]:
+        """``(qdd_1, qdd_2, lambda)`` with joint ``j`` free, the other held: :meth:`_Step.
+        reduced`'s operations on floats (finite arguments)."""
+        inverse = self.inverse
+        h1, h2 = inverse(q1, q2, v1, v2, 0.0, 0.0)
+        r1, r2 = t1 - h1, t2 - h2
+        if j == 0:
+            c1, c2 = inverse(q1, q2, v1, v2, _UNIT_ACCEL, 0.0)
+            x = r1 / ((c1 - h1) / _UNIT_ACCEL)
+            return x, 0.0, (c2 - h2) / _UNIT_ACCEL * x - r2
+        c1, c2 = inverse(q1, q2, v1, v2, 0.0, _UNIT_ACCEL)
+        x = r2 / ((c2 - h2) / _UNIT_ACCEL)
+        return 0.0, x, (c1 - h1) / _UNIT_ACCEL * x - r1
+
+    def reduced(self, q: np.ndarray, qd: np.ndarray, taup: np.ndarray,
+                free: tuple[int, ...], held: tuple[int, ...]
+                ) -> tuple[np.ndarray, list[float]]:
+        if len(free) != 1:
+            return super().reduced(q, qd, taup, free, held)
+        q1, q2 = q.tolist()
+        v1, v2 = qd.tolist()
+        if not math.isfinite(q1 + q2 + v1 + v2):
+            return super().reduced(q, qd, taup, free, held)
+        t1, t2 = taup.tolist()
+        a1, a2, lam = self._accel(q1, q2, v1, v2, t1, t2, free[0])
+        return _array([a1, a2]), [lam]
+
+    def _advance(self, state: _State, taup: list[float], free: tuple[int, ...],
+                 fixed: tuple[int, ...], h: float, first: list[float] | None) -> _State:
+        """:meth:`_Step.advance` on floats."""
+        (x1, x2), (v1, v2) = state
+        t1, t2 = taup
+        if not math.isfinite(x1 + x2 + v1 + v2 + t1 + t2) or not 0.0 < h < math.inf:
+            q1, qd1 = _Step.advance(self, _array(state[0]), _array(state[1]), _array(taup),
+                                    free, fixed, h, None if first is None
+                                    else _array(first))
+            return _pairs(q1, qd1)
+        if not fixed:
+            # model.step(q, qd, taup, h, 1) of the 2-R arm: its float RK4
+            try:
+                y1, y2, w1, w2 = self.rk4(x1, x2, v1, v2, t1, t2, h, 1)
+            except (ValueError, OverflowError):  # math.cos(inf): diverged, as in step
+                y1 = y2 = w1 = w2 = math.nan
+            return (y1, y2), (w1, w2)
+        j = free[0]
+        accel = self._accel
+        if first is not None:
+            a1, a2 = first
+        else:
+            a1, a2, _ = accel(x1, x2, v1, v2, t1, t2, j)
+        h2 = 0.5 * h
+        # rk4_step: v2 = qd + h2 a1, a2 = fd(q + h2 qd, v2), ... element by element
+        u1, u2 = v1 + h2 * a1, v2 + h2 * a2
+        p1, p2 = x1 + h2 * v1, x2 + h2 * v2
+        ok = math.isfinite(p1 + p2 + u1 + u2)
+        if ok:
+            b1, b2, _ = accel(p1, p2, u1, u2, t1, t2, j)
+            w1, w2 = v1 + h2 * b1, v2 + h2 * b2
+            p1, p2 = x1 + h2 * u1, x2 + h2 * u2
+            ok = math.isfinite(p1 + p2 + w1 + w2)
+        if ok:
+            c1, c2, _ = accel(p1, p2, w1, w2, t1, t2, j)
+            z1, z2 = v1 + h * c1, v2 + h * c2
+            p1, p2 = x1 + h * w1, x2 + h * w2
+            ok = math.isfinite(p1 + p2 + z1 + z2)
+        if not ok:   # non-finite within the step: _Step's own path refuses it
+            q1, qd1 = _Step.advance(self, _array(state[0]), _array(state[1]), _array(taup),
+                                    free, fixed, h, None if first is None
+                                    else _array(first))
+            return _pairs(q1, qd1)
+        d1, d2, _ = accel(p1, p2, z1, z2, t1, t2, j)
+        h6 = h / 6.0
+        y1 = x1 + h6 * (v1 + 2.0 * (u1 + w1) + z1)
+        y2 = x2 + h6 * (v2 + 2.0 * (u2 + w2) + z2)
+        # Bit for bit: the held joint's position as it was, its velocity exactly zero.
+        if j == 0:
+            return (y1, x2), (v1 + h6 * (a1 + 2.0 * (b1 + c1) + d1), 0.0)
+        return (x1, y2), (0.0, v2 + h6 * (a2 + 2.0 * (b2 + c2) + d2))
+
+    def _values(self, kinds: Sequence[_Kind], state: _State, taup: list[float],
+                sigma: list[float], free: tuple[int, ...], held: tuple[int, ...]
+                ) -> list[float]:
+        """:meth:`_Step.values` on floats."""
+        (q1, q2), v = state
+        lam = 0.0
+        if any(kind == 1 for kind, _ in kinds):
+            if len(free) == 1 and math.isfinite(q1 + q2 + v[0] + v[1]):
+                lam = self._accel(q1, q2, v[0], v[1], taup[0], taup[1], free[0])[2]
+            else:
+                return self.values(kinds, _array(state[0]), _array(v), _array(taup), sigma,
+                                   free, held)
+        return [sigma[i] * v[i] if kind == 0 else self.s[i] - abs(lam) for kind, i in kinds]
+
+    def run(self, q: np.ndarray, qd: np.ndarray, dt: float
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """:meth:`_Step.run` on floats (no brake: a brake takes :meth:`_Step.run`)."""
+        if True in self.lock:
+            return super().run(q, qd, dt)
+        work = 0.0
+        left = dt
+        held, sigma, first = self.decide(q, qd)
+        state = _pairs(q, qd)
+        for events in range(MAX_EVENTS + 1):
+            if all(held) or not left > 0.0:
+                break   # all held: nothing moves, the holding torque stays as it is
+            free = tuple(i for i, h in enumerate(held) if not h)
+            fixed = tuple(i for i, h in enumerate(held) if h)
+            taup = [t - c * x for t, c, x in zip(self.tau, self.c, sigma)]
+            acc = None if first is None else first.tolist()
+            end = self._advance(state, taup, free, fixed, left, acc)
+            v1 = end[1]
+            kinds: list[_Kind] = [(0, i) for i in free if sigma[i] * v1[i] <= 0.0
+                                  and sigma[i] != 0.0]
+            kinds += [(1, i) for i in fixed if self.breakable[i]]
+            values = self._values(kinds, end, taup, sigma, free, fixed) if kinds else []
+            hits = [(kv, x) for kv, x in zip(kinds, values) if self.triggered(kv[0], x)]
+            if not hits or events == MAX_EVENTS:
+                work += self._work(state[0], end[0], sigma)
+                state = end
+                break
+            kinds = [kv for kv, _ in hits]
+
+            def step(theta: float, start=state, taup=taup, free=free, fixed=fixed,
+                     left=left, acc=acc) -> _State:
+                return self._advance(start, taup, free, fixed, theta * left, acc)
+
+            def evaluate(qx: tuple[float, float], qdx: tuple[float, float], kinds=kinds,
+                         taup=taup, sigma=sigma, free=free, fixed=fixed) -> list[float]:
+                return self._values(kinds, (qx, qdx), taup, sigma, free, fixed)
+
+            located = self.locate(kinds, end, [x for _, x in hits],  # type: ignore[arg-type]
+                                  evaluate(*state), step, evaluate, left)  # type: ignore[arg-type]
+            theta, end = located[0], cast(_State, located[1])
+            work += self._work(state[0], end[0], sigma)
+            v = list(end[1])
+            for i in free:
+                if sigma[i] != 0.0 and sigma[i] * v[i] <= 0.0:
+                    v[i] = 0.0
+            state = (end[0], (v[0], v[1]))
+            left = 0.0 if theta >= 1.0 else left * (1.0 - theta)
+            held, sigma, first = self.decide(_array(state[0]), _array(state[1]))
+        return _array(state[0]), _array(state[1]), np.array(held), work
+
+    def _work(self, q0: tuple[float, float], q1: tuple[float, float],
+              sigma: list[float]) -> float:
+        """:meth:`_Step.slip_work` on floats."""
+        work = 0.0
+        for c, x, a, b in zip(self.c, sigma, q0, q1):
+            if x != 0.0:
+                work += c * max(x * (b - a), 0.0)
+        return work
 
 
 # ---------------------------------------------------------------------------------- batch
