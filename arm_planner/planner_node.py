@@ -25,6 +25,7 @@ from std_msgs.msg import Header
 from std_srvs.srv import SetBool
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from arm_common.gate import WAIT_FOR_NODES, SubscriberGate
 from arm_common.node import (
     SUMMARY_TASK,
     ConfigError,
@@ -170,6 +171,7 @@ PLANNER_PARAMS: tuple[ParamSpec, ...] = (
               'is planned and confirmed, so it starts exactly there; empty = never hold. '
               "Its node (simulator) is the one whose faults on /diagnostics refuse goals",
               read_only=True, allow_empty=True),
+    WAIT_FOR_NODES,
 )
 
 #: The simulator's fault statuses (arm_dynamics.simulator_node: the tasks of a runaway and
@@ -283,6 +285,9 @@ class PlannerNode(Node):
                                               'arm_controller/joint_trajectory', 10)
         # Latched: the current plan's path, for a display (RViz) that comes up later.
         self.path_pub = self.create_publisher(Path, 'planner/path', latched_qos())
+        # A trajectory goes out once wait_for_nodes subscribe it (e.g. arm-sim check's
+        # reference node) and every subscription the graph lists is matched.
+        self.gate = SubscriberGate(self, [self.traj_pub], p['wait_for_nodes'])
         self.create_subscription(JointState, 'joint_states', self._on_joint_state, 10)
         self.create_subscription(PoseStamped, 'goal_pose', self._on_goal, 10)
         self.status_topic = self.resolve_topic_name('arm_controller/trajectory_status')
@@ -634,6 +639,16 @@ class PlannerNode(Node):
                                f"(send {sent['sends'] + 1} of {SENDS})")
         self._plan(sent['goal'], sends=sent['sends'])
 
+    def _unmatched(self) -> list[str]:
+        """What a trajectory published now would miss: wait_for_nodes not subscribed yet,
+        subscriptions the graph lists but the publisher has not matched (a volatile message
+        reaches only matched readers)."""
+        if not self.gate.ready(self.diag, 'the first trajectory'):
+            return self.gate.missing()
+        listed = len(self.get_subscriptions_info_by_topic(self.traj_pub.topic_name))
+        matched = self.traj_pub.get_subscription_count()
+        return [f'{matched} of {listed} subscriptions matched'] if matched < listed else []
+
     def _send_pending(self) -> None:
         """Publish the pending plan once a controller is matched: a trajectory published
         before the controller's subscription matches is lost (volatile QoS)."""
@@ -659,12 +674,18 @@ class PlannerNode(Node):
         if self.pending is None:
             return
         plan, deadline, start_ns, goal, sends = self.pending
-        if self.traj_pub.get_subscription_count() == 0:
-            if time.monotonic() > deadline:
+        matched = self.traj_pub.get_subscription_count()
+        missing = self._unmatched()
+        if matched == 0 or missing:
+            if time.monotonic() <= deadline:
+                return
+            if matched == 0:
                 self.pending = None
                 self.diag.problem('goal_unsent', 'goal_pose dropped: no controller subscribed '
                                   f'to arm_controller/joint_trajectory for {CONTROLLER_WAIT:g} s')
-            return
+                return
+            self.get_logger().warning(f'trajectory sent after {CONTROLLER_WAIT:g} s without '
+                                      f'{", ".join(missing)}')
         self.pending = None
         msg = trajectory_message(plan, self.joint_names, start_ns)
         self.traj_pub.publish(msg)

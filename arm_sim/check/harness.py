@@ -50,6 +50,14 @@ REFERENCE_REMAPS = {'__node': 'check_reference',
                     'arm_controller/reference': REFERENCE_TOPIC,
                     'effort_controller/commands': 'check/unused'}
 START_WAIT = 60.0  # s (wall): the suite's own nodes to start and match
+#: A controller that gives verdicts (arm_sim's own, or yours if it publishes on the topic
+#: below) but has none on a goal's trajectory this long (wall) after the reference node
+#: took it is sent the very same trajectory again, time still paused, up to VERDICT_SENDS
+#: times: the planner stops re-sending once the verdict givers *it* knows have answered,
+#: and under load it may not know of a controller the harness already sees.
+VERDICT_WAIT = 1.0
+VERDICT_SENDS = 3
+STATUS_TOPIC = '/arm_controller/trajectory_status'
 FAULTS = ('runaway', 'diverged')
 #: The scenario's name, in the environment of the controller the harness starts.
 SCENARIO_ENV = 'ARM_SIM_CHECK_SCENARIO'
@@ -240,7 +248,8 @@ class ScenarioRun(Demo):
         # know where the motion starts).
         self._start('simulator', wait_for_nodes=['recorder', 'planner', 'check_reference'],
                     **sim)
-        self._start('planner')
+        # Trajectories go out once the reference node has matched them: it grades them.
+        self._start('planner', wait_for_nodes=['check_reference'])
         self.procs.append(NodeProcess(
             'check_reference', params_file=self.params_files,
             node_params={'check_reference': {'use_sim_time': True}},
@@ -252,6 +261,10 @@ class ScenarioRun(Demo):
         c.follow_reference(REFERENCE_TOPIC)
         c.node.create_subscription(Float64MultiArray, 'effort_controller/commands',
                                    self._on_command, 1000)
+        from trajectory_msgs.msg import JointTrajectory
+
+        self.traj_pub = c.node.create_publisher(JointTrajectory,
+                                                'arm_controller/joint_trajectory', 10)
         codes: dict[str, int] = {}
         try:
             try:
@@ -356,6 +369,7 @@ class ScenarioRun(Demo):
                 raise ScenarioFailed(f'goal {k} {list(goal.tip)} m refused: {refusal()}')
             self._wait(lambda: len(c.events_of('check_reference', 'trajectory_accepted'))
                        > accepted, f'the trajectory of goal {k} to be accepted')  # noqa: B023
+            self._every_verdict(c, c.trajectories[-1], k)
             end = c.trajectories[-1].points[-1].time_from_start
             duration = end.sec + end.nanosec * 1e-9
             t_next = round((at + duration + sc.settle) / PERIOD) * PERIOD
@@ -363,6 +377,40 @@ class ScenarioRun(Demo):
             self.echo(f'    t = {at:5.2f} s  goal {k}: {goal.mode} to '
                       f'({goal.tip[0]:g}, {goal.tip[1]:g}) m, {duration:.2f} s of motion')
         self._run_to_time(c, t_next)
+
+    def _every_verdict(self, c: SuiteClient, msg, k: int) -> None:
+        """Every node publishing trajectory_status (but the reference node, already
+        waited for) has a verdict on the trajectory ``msg`` of goal ``k``: one without is
+        sent ``msg`` again (see :data:`VERDICT_WAIT`); after :data:`VERDICT_SENDS` sends
+        the scenario goes on with a warning (a controller may publish statuses of its own
+        kind). Time stands paused at the goal meanwhile, so nothing of the run changes."""
+        stamp = str(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+
+        def missing() -> list[str]:
+            givers = {f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                      for i in c.node.get_publishers_info_by_topic(STATUS_TOPIC)}
+            said = {s.name for s in c.trajectory_statuses
+                    if any(kv.key == 'stamp_ns' and kv.value == stamp for kv in s.values)}
+            return sorted(givers - said - {'/check_reference'})
+
+        for _ in range(VERDICT_SENDS):
+            end = time.monotonic() + VERDICT_WAIT
+            self._wait(lambda: not missing() or time.monotonic() > end,  # noqa: B023
+                       f'the verdicts on the trajectory of goal {k}')
+            if not missing():
+                return
+            listed = len(c.node.get_subscriptions_info_by_topic(self.traj_pub.topic_name))
+            self._wait(lambda: self.traj_pub.get_subscription_count() >= listed,  # noqa: B023
+                       'the controllers to match the trajectory sent again')
+            self.echo(f'    goal {k}: no verdict from {", ".join(missing())} in '
+                      f'{VERDICT_WAIT:g} s: its trajectory sent again (time stands paused)')
+            self.traj_pub.publish(msg)
+        end = time.monotonic() + VERDICT_WAIT
+        self._wait(lambda: not missing() or time.monotonic() > end,
+                   f'the verdicts on the trajectory of goal {k}')
+        if missing():
+            self.warnings.append(f'no verdict from {", ".join(missing())} on the trajectory '
+                                 f'of goal {k} in {VERDICT_SENDS + 1} sends')
 
     def _run_to_time(self, c: SuiteClient, t: float) -> None:
         """Let simulated time run to ``t`` (the simulator pauses there) and wait for it."""
