@@ -6,7 +6,9 @@ same stamp (lockstep re-sends an unanswered state) counts once. A new segment st
 each ``arm_controller/joint_trajectory`` message's start: its ``header.stamp`` (arm_sim's
 planner stamps the simulated time it planned from), or, for a trajectory stamped zero ("on
 arrival"), the first joint state received after it (a warning says so: that start depends
-on the recording's latency). Joint states before the first trajectory are not analysed.
+on the recording's latency). A trajectory equal to the one before it (the same nonzero
+stamp and points: the planner sending it again until the controller confirms it) starts no
+segment of its own. Joint states before the first trajectory are not analysed.
 Per segment:
 
 * ``mode``: ``straight_line`` if the segment's ``planner/path`` poses (the path stamped
@@ -299,7 +301,7 @@ def analyze_data(bag: BagData) -> Report:
     if len(trajs) < len(bag.trajectories):
         warnings.append(f'{len(bag.trajectories) - len(trajs)} trajectories with other '
                         f'joint names or no points ignored')
-    trajs = _valid_trajectories(trajs, warnings)
+    trajs = _without_resends(_valid_trajectories(trajs, warnings))
     coulomb = _coulomb(bag, js.names, warnings)
     run = {'duration': float(t[-1]), 'samples': len(js)}
     run.update(_torque(js.effort, js.position, limits, slice(None), js.names, coulomb))
@@ -391,6 +393,29 @@ def _valid_trajectories(trajs, warnings: list[str]) -> list:
             continue
         kept.append(tr)
     return kept
+
+
+def _without_resends(trajs: list) -> list:
+    """``trajs`` without the re-sends: a trajectory equal to the one before it (the same
+    nonzero stamp, joints and points) is the planner sending it again until a controller
+    confirms it, which the controller runs as the one it has: one motion, one segment."""
+    kept: list = []
+    for tr in trajs:
+        m = tr.trajectory
+        if kept and m.stamp and _same_trajectory(kept[-1].trajectory, m):
+            continue
+        kept.append(tr)
+    return kept
+
+
+def _same_trajectory(a, b) -> bool:
+    return (a.stamp == b.stamp and a.joint_names == b.joint_names
+            and np.array_equal(a.positions, b.positions)
+            and np.array_equal(a.time_from_start, b.time_from_start)
+            and len(a.velocities) == len(b.velocities)
+            and all(np.array_equal(x, y) for x, y in zip(a.velocities, b.velocities))
+            and len(a.accelerations) == len(b.accelerations)
+            and all(np.array_equal(x, y) for x, y in zip(a.accelerations, b.accelerations)))
 
 
 def _segment_starts(trajs, js: JointStates, t_ns: np.ndarray, warnings: list[str]) -> list[int]:

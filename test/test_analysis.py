@@ -180,6 +180,32 @@ def test_segments_depend_on_simulated_time_only_not_on_receive_times_or_resent_s
     assert lagged['run'] == base['run']
 
 
+def test_a_trajectory_sent_again_unchanged_is_one_segment_and_a_changed_one_replaces_it(
+        tmp_path):
+    """The planner sends a trajectory again, the very same, until the controller confirms
+    it: the table is that of one send. A different one with the same start replaces it."""
+    import copy
+    from dataclasses import replace
+
+    from arm_bag.analysis import analyze_data
+    synthetic_bag(tmp_path / 'bag')
+    bag = read_bag(tmp_path / 'bag')
+    base = analyze_data(bag).to_dict()
+    first = bag.trajectories[0]
+    again = copy.deepcopy(first)
+    again.log_time += 1_000_000_000   # one second (wall) later: the planner's re-send
+    bag.trajectories.insert(1, again)
+    resent = analyze_data(bag).to_dict()
+    assert resent['segments'] == base['segments'] and resent['warnings'] == base['warnings']
+    changed = copy.deepcopy(again)
+    changed.trajectory = replace(again.trajectory, positions=again.trajectory.positions + 0.1)
+    bag.trajectories[1] = changed
+    doc = analyze_data(bag).to_dict()
+    # Not a re-send: it replaces the first at its start, which keeps no states of its own.
+    assert [seg['index'] for seg in doc['segments']] == [1, 2]
+    assert 'segment 0: no joint states after its trajectory' in doc['warnings']
+
+
 def test_unstamped_trajectories_fall_back_to_receive_time_with_a_warning(tmp_path):
     synthetic_bag(tmp_path / 'bag')
     bag = read_bag(tmp_path / 'bag')
