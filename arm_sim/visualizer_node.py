@@ -173,6 +173,7 @@ class VisualizerNode(Node):
         self.sent = 0
         self.markers_pub = self.create_publisher(MarkerArray, 'markers', 10)
         self.publish_tf = bool(p['publish_tf'])
+        self.states = 0  # joint states taken
         self.tf_sent = 0
         self.tf_dropped = 0  # held transforms pushed out while the gate was shut
         self.tf_held: deque[TFMessage] = deque(maxlen=TF_DEPTH)  # while the gate is shut
@@ -225,9 +226,8 @@ class VisualizerNode(Node):
                 self._reject('rejected_joint_state',
                              f'joint_states has non-finite positions {q.tolist()}')
                 return
-            if self.q is None:
-                self.diag.set('OK', 'showing the arm')
             self.q, self.stamp = q, msg.header.stamp
+            self.states += 1
             self.t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             self.trail.add(self.t_ns, q)
             self.changed = True
@@ -245,6 +245,7 @@ class VisualizerNode(Node):
                                           f'{self.tf_held.maxlen} are held)',
                                           tf_dropped=self.tf_dropped)
                     self.tf_held.append(tf)
+            self._figures()
         except Exception as exc:  # never die on a message
             self.diag.problem('internal_error', f'joint_states handling failed: {exc!r}',
                               'ERROR')
@@ -302,6 +303,7 @@ class VisualizerNode(Node):
             self.tf_pub.publish(self.tf_held.popleft())
             self.tf_sent += 1
         if not self.changed or self.q is None:
+            self._figures()
             return
         self.changed = False
         try:
@@ -313,9 +315,14 @@ class VisualizerNode(Node):
         header = Header(frame_id=self.frame, stamp=self.stamp)
         self.markers_pub.publish(markers_message(shapes, header))
         self.sent += 1
-        self.diag.set('OK', 'showing the arm', markers_sent=self.sent,
+        self._figures()
+
+    def _figures(self) -> None:
+        """The summary's figures, current with every state taken and every message sent
+        (so a report whose ``sim_time`` is a state's stamp counts that state's transforms)."""
+        self.diag.set('OK', 'showing the arm', states=self.states, markers_sent=self.sent,
                       trail_points=len(self.trail), tf_sent=self.tf_sent,
-                      tf_dropped=self.tf_dropped)
+                      tf_held=len(self.tf_held), tf_dropped=self.tf_dropped)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -83,9 +83,9 @@ def test_markers_are_forward_kinematics_of_the_joint_states_with_trail_goal_and_
     states = ros.publisher(JointState, 'joint_states', qos=1000)
     paths = latched(ros, Path, 'planner/path')
     goals = ros.publisher(PoseStamped, 'goal_pose')
-    ros.wait_for(lambda: states.get_subscription_count() >= 1
-                 and goals.get_subscription_count() >= 1
-                 and paths.get_subscription_count() >= 1, 20, 'the visualizer to subscribe')
+    # Named: a subscription of a node stopped in an earlier test can linger in the graph.
+    for pub in (states, goals, paths):
+        ros.wait_matched(pub, ['visualizer'], 20)
     path = np.linspace([0.5, 1.2], [1.4, 0.2], 7)
     paths.publish(path_msg(path))
     goal = (0.5, 1.2)
@@ -131,9 +131,12 @@ def test_markers_are_forward_kinematics_of_the_joint_states_with_trail_goal_and_
         # The trail: the tip at every state of the last TRAIL s up to this one.
         window = [sent[s] for s in sorted(sent) if t - TRAIL * 1e9 <= s <= t]
         trail = m['trail']
-        assert trail.type == Marker.LINE_STRIP and trail.action == Marker.ADD
-        assert len(trail.points) == len(window) == min(t // PERIOD_NS + 1,
-                                                       round(TRAIL * 1e9 / PERIOD_NS) + 1)
+        assert len(window) == min(t // PERIOD_NS + 1, round(TRAIL * 1e9 / PERIOD_NS) + 1)
+        assert trail.type == Marker.LINE_STRIP
+        if len(window) < 2:  # markers drawn after the first state only: no line yet
+            assert trail.action == Marker.DELETE
+            continue
+        assert trail.action == Marker.ADD and len(trail.points) == len(window)
         assert np.abs(xy(trail) - ARM.forward_kinematics(np.array(window))).max() < TOL
     assert len(arrays) >= 3 and len(by_ns(arrays[-1])['trail'].points) == 6, 'a full trail'
     m = by_ns(array)
@@ -165,9 +168,9 @@ def test_bad_input_is_reported_and_never_stops_the_markers(ros, launch):
     states = ros.publisher(JointState, 'joint_states')
     goals = ros.publisher(PoseStamped, 'goal_pose')
     paths = latched(ros, Path, 'planner/path')
-    ros.wait_for(lambda: states.get_subscription_count() >= 1
-                 and goals.get_subscription_count() >= 1
-                 and paths.get_subscription_count() >= 1, 20, 'the visualizer to subscribe')
+    # Named: a subscription of a node stopped in an earlier test can linger in the graph.
+    for pub in (states, goals, paths):
+        ros.wait_matched(pub, ['visualizer'], 20)
     # Its immediate reports reach us only once our /diagnostics subscription has matched
     # its publisher: wait for its periodic summary first (seen missed once under load).
     ros.wait_for(lambda: any(s.name.startswith('visualizer') for d in diags for s in d.status),
