@@ -212,8 +212,7 @@ def test_a_display_started_after_the_plan_still_gets_its_path(ros, launch, joint
     goals = connect(ros, diags)
     joint_feed['q'] = Q0
     wait_ready(ros, diags)
-    ros.wait_for(lambda: status.get_subscription_count() >= 1, 10,
-                 'the planner to subscribe arm_controller/trajectory_status')
+    ros.wait_matched(status, ['planner'])  # not a lingering one of an earlier test
     goals.publish(goal_msg(0.5, 1.0))
     ros.wait_for(lambda: trajs and paths, 10, 'the plan')
     # Confirm it as a controller does, so the planner does not send it again.
