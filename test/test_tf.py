@@ -303,9 +303,9 @@ def test_visualizer_publishes_tf_per_state_and_tf_static_once_and_the_bag_has_th
     assert (static.header.frame_id, static.child_frame_id) == ('link3', 'tool0')
     assert (static.transform.translation.x, _stamp_ns(static.header.stamp)) == (0.3, 0)
     # The visualizer's figures as of the last state (its summary is current with every
-    # state taken), with nothing held back. It took every state but perhaps the first few,
-    # sent before its subscription matched this publisher (DDS delivers nothing to a
-    # volatile reader from a writer it has not matched yet).
+    # state taken), with nothing held back. It took every state from the first it got on
+    # (this test cannot see when the visualizer's side of the match was made, so the first
+    # few may have found it not yet listening).
     at_last = f'{last * 1e-9:.9f}'
     figures = ros.wait_for(
         lambda: (v := _summary(diags, 'visualizer')).get('sim_time') == at_last
