@@ -66,7 +66,7 @@ def suite(ros, launch):
         traj_pub = ros.publisher(JointTrajectory, 'arm_controller/joint_trajectory')
         ros.wait_for(lambda: states and stamp(states[-1]) > 0.05, timeout=30,
                      what='the closed loop to run')
-        ros.wait_for(lambda: traj_pub.get_subscription_count() > 0, what='controller')
+        ros.wait_matched(traj_pub, ['controller'])  # not a lingering one of an earlier test
         # The reference subscription may match after the state one: wait for its evidence
         # too, or a test reading refs[-1] soon after start finds none.
         ros.wait_for(lambda: refs, what="the controller's reference")
