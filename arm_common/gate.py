@@ -42,6 +42,17 @@ def _matches(wanted: str, name: str, namespace: str) -> bool:
     return fqn == '/' + wanted.strip('/')
 
 
+def unmatched(node, pub) -> str | None:
+    """``'<n> of <m> subscriptions matched on <topic>'`` when ``pub`` has matched fewer
+    subscriptions than ``node``'s graph lists on its topic (a volatile message published
+    now would miss the rest), else None."""
+    listed = len(node.get_subscriptions_info_by_topic(pub.topic_name))
+    matched = pub.get_subscription_count()
+    if matched < listed:
+        return f'{matched} of {listed} subscriptions matched on {pub.topic_name}'
+    return None
+
+
 class SubscriberGate:
     """``node``'s ``publishers`` wait for ``nodes``' subscriptions (see the module)."""
 
@@ -65,9 +76,9 @@ class SubscriberGate:
             for wanted in self.nodes:
                 if not any(_matches(wanted, i.node_name, i.node_namespace) for i in infos):
                     gaps.append(f'{wanted} on {topic}')
-            matched = pub.get_subscription_count()
-            if matched < len(infos):
-                gaps.append(f'{matched} of {len(infos)} subscriptions matched on {topic}')
+            gap = unmatched(self.node, pub)
+            if gap:
+                gaps.append(gap)
         return gaps
 
     def open(self) -> bool:

@@ -25,7 +25,7 @@ from std_msgs.msg import Header
 from std_srvs.srv import SetBool
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from arm_common.gate import WAIT_FOR_NODES, SubscriberGate
+from arm_common.gate import WAIT_FOR_NODES, SubscriberGate, unmatched
 from arm_common.node import (
     SUMMARY_TASK,
     ConfigError,
@@ -645,9 +645,8 @@ class PlannerNode(Node):
         reaches only matched readers)."""
         if not self.gate.ready(self.diag, 'the first trajectory'):
             return self.gate.missing()
-        listed = len(self.get_subscriptions_info_by_topic(self.traj_pub.topic_name))
-        matched = self.traj_pub.get_subscription_count()
-        return [f'{matched} of {listed} subscriptions matched'] if matched < listed else []
+        gap = unmatched(self, self.traj_pub)
+        return [gap] if gap else []
 
     def _send_pending(self) -> None:
         """Publish the pending plan once a controller is matched: a trajectory published
