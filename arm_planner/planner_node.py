@@ -87,11 +87,12 @@ and planned from the first one; with none within 5 s (wall) it is refused
 simulated time goes back or jumps during a planned motion (a restarted simulator, a reset),
 the controller drops the motion, says so on arm_controller/trajectory_status with the state
 it now holds, and the planner plans the goal again from that state (event replanned). A
-trajectory is re-sent (up to 10 times, 1 s apart, planned again from the latest state)
-until the controller confirms it on arm_controller/trajectory_status (every node that
-publishes there: arm-sim check's reference node and a controller under test both take it;
-after 3 sends the confirmations there are suffice); a refusal there, or no confirmation, is
-reported as goal_refused_by_controller or goal_unsent.
+trajectory is re-sent (up to 10 times, 1 s apart: the first 3 as it is, time still held,
+then planned again from the latest state) until the controller confirms it on
+arm_controller/trajectory_status (every node that publishes there: arm-sim check's
+reference node and a controller under test both take it; after 3 sends the confirmations
+there are suffice); a refusal there, or no confirmation, is reported as
+goal_refused_by_controller or goal_unsent.
 
 Goals take effect at a simulated time that does not depend on how long planning took: on
 each goal the planner first holds the simulator's time (its hold_service, std_srvs/SetBool,
@@ -599,10 +600,13 @@ class PlannerNode(Node):
     def _confirm_sent(self) -> None:
         """Send the goal again until a controller confirms its trajectory: a publish can
         reach no live controller (one that just restarted and is not matched yet, while one
-        that left still counts as a subscriber). A plan made at a hold, to a controller that
-        gives verdicts (a trajectory_status publisher is in the graph), goes again as it is,
-        time still held, up to :data:`SAME_SENDS` sends; after that, or any other plan, it is
-        planned again from the latest state (time may have moved on meanwhile); at a
+        that left still counts as a subscriber). A plan stamped with its state's time (made
+        at a hold, or from a moving arm) goes again as it is (time still held, if it is) up
+        to :data:`SAME_SENDS` sends, whether or not the graph lists a trajectory_status
+        publisher yet: a controller's verdict publisher can be discovered after its
+        trajectory subscription (its first verdict then lost), and taking it for one that
+        gives none re-planned the goal with time running. After that, or for a plan stamped
+        0, it is planned again from the latest state (time may have moved on meanwhile); at a
         standstill that is the same plan."""
         sent = self.sent
         if sent is None or time.monotonic() - sent['at'] < CONFIRM_WAIT:
@@ -618,11 +622,11 @@ class PlannerNode(Node):
                               f"no controller confirmed its trajectory in {sent['sends']} "
                               f'sends, {CONFIRM_WAIT:g} s apart', goal_x=goal[0], goal_y=goal[1])
             return
-        if (sent['stamp'] != 0 and sent['sends'] < SAME_SENDS
-                and self.count_publishers(self.status_topic) > 0):
-            # A controller that says what became of each trajectory is there (arm_sim's):
-            # it may only be slow to answer (a loaded machine). The very same trajectory
-            # again, time still held: how long the answer took cannot change the run.
+        if sent['stamp'] != 0 and sent['sends'] < SAME_SENDS:
+            # The controller may only be slow to answer (a loaded machine), or its verdicts
+            # may not reach us yet (its status publisher not discovered: none listed is no
+            # proof it gives none). The very same trajectory again, time still held: how
+            # long the answer took cannot change the run.
             sent['sends'] += 1
             sent['at'] = time.monotonic()
             self.traj_pub.publish(sent['msg'])

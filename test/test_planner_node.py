@@ -232,6 +232,76 @@ def test_a_display_started_after_the_plan_still_gets_its_path(ros, launch, joint
     assert xy[0] == xy[1] and late[0].header == paths[0].header
 
 
+def test_a_plan_made_at_a_hold_goes_again_as_it_is_until_a_late_verdict_comes(ros, launch):
+    """A controller's verdict publisher can be discovered after its trajectory
+    subscription: its verdict on the first send is lost and, for a while, the graph lists
+    no trajectory_status publisher at all (seen in CI). The planner sends the very same
+    trajectory again with time still held (SAME_SENDS = 3 sends, 1 s apart) instead of
+    taking the controller for one that gives no verdicts (that released the hold and
+    re-planned the goal stamped 0 with time running, so the run depended on timing); the
+    verdict, once it comes, settles the plan and releases the hold. The test plays the
+    simulator (a hold service at a state stamped 1 s) and the controller, whose verdict
+    publisher appears only after the second send."""
+    from std_srvs.srv import SetBool
+
+    launch('planner')
+    held_ns = 1_000_000_000
+    holds: list[bool] = []
+
+    def on_hold(request, response):
+        holds.append(request.data)
+        response.success = True
+        response.message = 'joint_states@1.000000000' if request.data else 'released'
+        return response
+
+    service = ros.node.create_service(SetBool, 'simulator/hold', on_hold)
+    states = ros.publisher(JointState, 'joint_states')
+    state = JointState(name=['joint1', 'joint2'], position=Q0, velocity=[0.0, 0.0],
+                       effort=[0.0, 0.0])
+    state.header.stamp.sec = 1
+    timer = ros.node.create_timer(0.02, lambda: states.publish(state))
+    try:
+        trajs = ros.collect(JointTrajectory, TRAJECTORY)
+        diags = ros.collect(DiagnosticArray, '/diagnostics')
+        goals = connect(ros, diags)
+        wait_ready(ros, diags)
+
+        def stamp_ns(traj: JointTrajectory) -> int:
+            return traj.header.stamp.sec * 1_000_000_000 + traj.header.stamp.nanosec
+
+        # Until the planner has discovered the hold service it plans without (stamped 0):
+        # a new goal supersedes such a plan, so send it again until one is made at a hold.
+        found: list[int] = []
+
+        def held_plan() -> bool:
+            found.extend(k for k, t in enumerate(trajs) if stamp_ns(t) == held_ns)
+            if not found and not holds:
+                goals.publish(goal_msg(0.5, 1.0))
+                spin_for(ros, 0.3)
+            return bool(found)
+
+        ros.wait_for(held_plan, 20, 'a plan made at the hold')
+        n = found[0]
+        ros.wait_for(lambda: len(trajs) > n + 1, 10, 'the trajectory sent a second time')
+        status = ros.publisher(DiagnosticStatus, 'arm_controller/trajectory_status')
+        ros.wait_matched(status, ['planner'])
+        status.publish(DiagnosticStatus(
+            level=DiagnosticStatus.OK, name='controller', message='accepted: by the test',
+            values=[KeyValue(key='stamp_ns', value=str(held_ns))]))
+        ros.wait_for(lambda: events(diags, '/planner', 'plan_accepted')
+                     or len(trajs) > n + 3, 10, 'the verdict taken (or the sends used up)')
+        sends = trajs[n:n + 3]
+        assert all(t == trajs[n] for t in sends), (
+            'the first sends are the very same trajectory, stamped at the hold: '
+            f'{[stamp_ns(t) for t in sends]}')
+        if len(trajs) <= n + 3:  # the verdict came within the sends: taken, time released
+            ros.wait_for(lambda: holds[-1:] == [False], 5, 'the hold released')
+            assert all(holds[:-1]), f'held until the verdict: {holds}'
+    finally:
+        ros.node.destroy_timer(timer)
+        ros.node.destroy_service(service)
+
+
 def test_help_and_refused_start_parameters(tmp_path):
     from arm_sim.launcher import NodeProcess
     proc = NodeProcess('planner', extra_args=['--help'], log_path=tmp_path / 'help.log',
