@@ -235,7 +235,8 @@ def test_a_display_started_after_the_plan_still_gets_its_path(ros, launch, joint
 def test_a_plan_made_at_a_hold_goes_again_as_it_is_until_a_late_verdict_comes(ros, launch):
     """A controller's verdict publisher can be discovered after its trajectory
     subscription: its verdict on the first send is lost and, for a while, the graph lists
-    no trajectory_status publisher at all (seen in CI). The planner sends the very same
+    no trajectory_status publisher at all (a CI demo's bag had the re-plans that caused:
+    stamps 0.5 s, 0, 0 for its first goal). The planner sends the very same
     trajectory again with time still held (SAME_SENDS = 3 sends, 1 s apart) instead of
     taking the controller for one that gives no verdicts (that released the hold and
     re-planned the goal stamped 0 with time running, so the run depended on timing); the
@@ -274,7 +275,7 @@ def test_a_plan_made_at_a_hold_goes_again_as_it_is_until_a_late_verdict_comes(ro
         found: list[int] = []
 
         def held_plan() -> bool:
-            found.extend(k for k, t in enumerate(trajs) if stamp_ns(t) == held_ns)
+            found[:] = [k for k, t in enumerate(trajs) if stamp_ns(t) == held_ns]
             if not found and not holds:
                 goals.publish(goal_msg(0.5, 1.0))
                 spin_for(ros, 0.3)
@@ -295,6 +296,7 @@ def test_a_plan_made_at_a_hold_goes_again_as_it_is_until_a_late_verdict_comes(ro
             'the first sends are the very same trajectory, stamped at the hold: '
             f'{[stamp_ns(t) for t in sends]}')
         if len(trajs) <= n + 3:  # the verdict came within the sends: taken, time released
+            assert events(diags, '/planner', 'plan_accepted')
             ros.wait_for(lambda: holds[-1:] == [False], 5, 'the hold released')
             assert all(holds[:-1]), f'held until the verdict: {holds}'
     finally:
