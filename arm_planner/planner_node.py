@@ -87,8 +87,9 @@ and planned from the first one; with none within 5 s (wall) it is refused
 simulated time goes back or jumps during a planned motion (a restarted simulator, a reset),
 the controller drops the motion, says so on arm_controller/trajectory_status with the state
 it now holds, and the planner plans the goal again from that state (event replanned). A
-trajectory is re-sent (up to 10 times, 1 s apart: the first 3 as it is, time still held,
-then planned again from the latest state) until the controller confirms it on
+trajectory is re-sent (up to 10 times, 1 s apart: one stamped with its state's time, e.g.
+made at a hold, 3 times as it is, time still held; then, or when stamped 0, planned again
+from the latest state) until the controller confirms it on
 arm_controller/trajectory_status (every node that publishes there: arm-sim check's
 reference node and a controller under test both take it; after 3 sends the confirmations
 there are suffice); a refusal there, or no confirmation, is reported as
@@ -625,8 +626,8 @@ class PlannerNode(Node):
         if sent['stamp'] != 0 and sent['sends'] < SAME_SENDS:
             # The controller may only be slow to answer (a loaded machine), or its verdicts
             # may not reach us yet (its status publisher not discovered: none listed is no
-            # proof it gives none). The very same trajectory again, time still held: how
-            # long the answer took cannot change the run.
+            # proof it gives none). The very same trajectory again (time still held, when
+            # made at a hold): how long the answer took cannot change the run.
             sent['sends'] += 1
             sent['at'] = time.monotonic()
             self.traj_pub.publish(sent['msg'])
