@@ -14,6 +14,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from builtin_interfaces.msg import Duration
 from control_msgs.action import FollowJointTrajectory
 from control_msgs.msg import JointTrajectoryControllerState
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
@@ -69,11 +70,13 @@ Until the first trajectory it holds the first measured position. Laws: pd, pd_gr
 computed_torque, pid. Reports on /diagnostics (statuses "controller: summary" and one per
 problem or event kind, e.g. "controller: trajectory_accepted").
 
-A trajectory that arrives before the first joint state waits for it (refused after 5 s of
-wall time without one: a new process may take a second to be matched with the
-simulator). When simulated time goes back or jumps (a restarted simulator, a reset, a bag
-replay) the trajectory is dropped, the measured position held and the jump reported; a
-restarted controller holds where the arm is.
+A trajectory or a FollowJointTrajectory goal that arrives before the first joint state
+waits for it and starts as if it had come just after it (refused after 5 s of wall time
+without one: a new process may take a second to be matched with the simulator); what a goal
+needs no state for (joint names, points, limits, tolerances) is answered at once, with the
+same result code as later. When simulated time goes back or jumps (a restarted simulator,
+a reset, a bag replay) the trajectory is dropped, the measured position held and the jump
+reported; a restarted controller holds where the arm is.
 
 Also serves arm_controller/follow_joint_trajectory (control_msgs/action/FollowJointTrajectory,
 what MoveIt drives), as joint_trajectory_controller does: a goal's trajectory replaces the
@@ -154,6 +157,12 @@ def _points(msg: JointTrajectory) -> list[TrajectoryPoint]:
                             p.accelerations) for p in msg.points]
 
 
+def _duration(seconds: float) -> Duration:
+    """``seconds`` >= 0 as a builtin_interfaces Duration (nanoseconds rounded)."""
+    sec, nanosec = divmod(int(round(seconds * 1e9)), 1_000_000_000)
+    return Duration(sec=sec, nanosec=nanosec)
+
+
 def _tolerances(tols) -> list[follow.JointTolerance]:
     return [follow.JointTolerance(t.name, t.position, t.velocity, t.acceleration)
             for t in tols]
@@ -166,6 +175,18 @@ def _point(positions: np.ndarray, velocities: np.ndarray,
     if accelerations is not None:
         point.accelerations = accelerations.tolist()
     return point
+
+
+@dataclass
+class _Waiting:
+    """A goal that came before the first joint state: checked (everything that needs no
+    state), then held until that state, when it starts exactly as if it had come just
+    after it (:meth:`ControllerNode._start_waiting`); refused after :data:`EARLY_WAIT`."""
+
+    handle: ServerGoalHandle
+    started: Future  # set to the goal's end (a Future) or to (transition, Outcome)
+    since: float  # s (wall) it came
+    label: str
 
 
 @dataclass
@@ -221,6 +242,7 @@ class ControllerNode(Node):
                                                'arm_controller/controller_state',
                                                STREAM_DEPTH)
         self.goal: _Goal | None = None
+        self.waiting: list[_Waiting] = []  # goals that came before the first state, in order
         self.follow_server: ActionServer | None = None
         # Goals are checked and answered in _control: a subclass that computes its own
         # updates (check_reference) executes none, so it does not offer the action.
@@ -311,6 +333,8 @@ class ControllerNode(Node):
         if self.early is not None:
             traj, self.early = self.early[0], None
             self._on_trajectory(traj)
+        if self.waiting:
+            self._start_waiting()
         if self.params['update_on'] == 'joint_states':
             stamp_ns = _stamp_ns(msg)
             answer = self.answer
@@ -363,12 +387,17 @@ class ControllerNode(Node):
 
     # ------------------------------------------------------------------ action
     async def _execute_goal(self, handle: ServerGoalHandle):
-        """A goal from acceptance to result: started (or refused) at once, then awaited
+        """A goal from acceptance to result: started (or refused) at once, or, before the
+        first joint state, checked and held until it (:class:`_Waiting`); then awaited
         without blocking the executor; _control, a cancel or a preempting trajectory ends
         it (:meth:`_finish_goal`)."""
         started = self._start_goal(handle)
+        if isinstance(started, _Waiting):
+            started = await started.started
         if isinstance(started, follow.Outcome):
             transition, outcome = 'abort', started
+        elif isinstance(started, tuple):  # ended while it waited for the first state
+            transition, outcome = started
         else:
             transition, outcome = await started
         if transition == 'cancel' and not handle.is_cancel_requested:
@@ -377,27 +406,41 @@ class ControllerNode(Node):
         return FollowJointTrajectory.Result(error_code=outcome.code,
                                             error_string=outcome.text)
 
-    def _start_goal(self, handle: ServerGoalHandle) -> follow.Outcome | Future:
+    def _goal_terms(self, handle: ServerGoalHandle) -> dict:
+        """A goal's trajectory and tolerances as :mod:`arm_control.follow` takes them."""
+        goal = handle.request
+        p = self.params
+        return dict(joint_names=goal.trajectory.joint_names, points=_points(goal.trajectory),
+                    defaults=follow.default_tolerances(
+                        p['constraints.trajectory'], p['constraints.goal'],
+                        p['constraints.goal_time'],
+                        p['constraints.stopped_velocity_tolerance']),
+                    path=_tolerances(goal.path_tolerance),
+                    goal=_tolerances(goal.goal_tolerance),
+                    goal_time=_seconds(goal.goal_time_tolerance),
+                    multi_dof_joints=list(goal.multi_dof_trajectory.joint_names))
+
+    def _start_goal(self, handle: ServerGoalHandle) -> follow.Outcome | Future | _Waiting:
         """Make a goal's trajectory the reference (preempting the goal or topic trajectory
-        in progress); returns the future of its end, or the outcome of a refused goal."""
+        in progress); returns the future of its end, the outcome of a refused goal, or,
+        before the first joint state, the goal checked and held (:class:`_Waiting`)."""
         goal = handle.request
         label = bytes(handle.goal_id.uuid).hex()[:8]
         traj_msg = goal.trajectory
+        terms = self._goal_terms(handle)
         try:
             if self.latest is None:
-                raise follow.GoalError(follow.INVALID_GOAL, 'no joint state received yet: '
-                                       'the start of the motion is unknown')
+                # What needs no state is answered now, whatever the timing (an unknown
+                # joint is INVALID_JOINTS before the first state as after it); the rest
+                # waits for that state.
+                follow.check_goal(self.core, **terms)
+                waiting = _Waiting(handle, Future(), time.monotonic(), label)
+                self.waiting.append(waiting)
+                self.get_logger().info(f'goal {label} waits for the first joint state')
+                return waiting
             t_now, q, qd = self.latest
-            p = self.params
-            defaults = follow.default_tolerances(
-                p['constraints.trajectory'], p['constraints.goal'], p['constraints.goal_time'],
-                p['constraints.stopped_velocity_tolerance'])
-            accepted = follow.accept_goal(
-                self.core, traj_msg.joint_names, _points(traj_msg), _stamp(traj_msg), t_now,
-                q, qd, defaults, path=_tolerances(goal.path_tolerance),
-                goal=_tolerances(goal.goal_tolerance),
-                goal_time=_seconds(goal.goal_time_tolerance),
-                multi_dof_joints=list(goal.multi_dof_trajectory.joint_names))
+            accepted = follow.accept_goal(self.core, stamp=_stamp(traj_msg), now=t_now, q=q,
+                                          qd=qd, **terms)
         except follow.GoalError as exc:
             name = follow.CODE_NAMES[exc.code]
             self.diag.problem('rejected_goal', f'goal {label} refused ({name}): {exc}; '
@@ -418,8 +461,34 @@ class ControllerNode(Node):
                         duration=f'{traj.duration:.9f}', points=len(traj_msg.points))
         return self.goal.done
 
+    def _start_waiting(self) -> None:
+        """The first joint state came: start the goals that waited for it, in the order
+        they came (a later one preempts an earlier one), before that state is answered."""
+        waiting, self.waiting = self.waiting, []
+        for w in waiting:
+            w.started.set_result(self._start_goal(w.handle))
+
+    def _end_waiting(self, waiting: _Waiting, transition: str,
+                     outcome: follow.Outcome) -> None:
+        """End a goal that is still waiting for the first joint state."""
+        self.waiting.remove(waiting)
+        name = follow.CODE_NAMES[outcome.code]
+        if transition == 'abort':
+            self.diag.problem('rejected_goal', f'goal {waiting.label} refused ({name}): '
+                              f'{outcome.text}', code=name)
+        else:
+            self.get_logger().info(f'goal {waiting.label} canceled: {outcome.text}')
+        waiting.started.set_result((transition, outcome))
+
     def _on_cancel(self, handle: ServerGoalHandle) -> CancelResponse:
-        """Cancel the goal in progress: the arm holds the last measured position."""
+        """Cancel the goal in progress: the arm holds the last measured position. A goal
+        still waiting for the first joint state ends without moving anything."""
+        for waiting in self.waiting:
+            if waiting.handle is handle:
+                self._end_waiting(waiting, 'cancel', follow.Outcome(
+                    follow.SUCCESSFUL, 'canceled before the first joint state: nothing '
+                    'moved'))
+                return CancelResponse.ACCEPT
         goal = self.goal
         if goal is None or goal.handle is not handle:
             return CancelResponse.REJECT  # ended already (or never started)
@@ -529,6 +598,12 @@ class ControllerNode(Node):
         desired = _point(step.q_des, step.qd_des, step.qdd_des)
         actual = _point(q, qd)
         error = _point(step.q_des - q, step.qd_des - qd)
+        # As joint_trajectory_controller: the reference's (and so the error's)
+        # time_from_start is how far into its trajectory the sample lies, the last point's
+        # once it has ended (0 while a position is held).
+        traj = self.core.trajectory
+        into = 0.0 if traj is None else min(max(t - self.core.start, 0.0), traj.duration)
+        desired.time_from_start = error.time_from_start = _duration(into)
         if watched:
             self.state_pub.publish(JointTrajectoryControllerState(
                 header=ref.header, joint_names=ref.name, reference=desired,
@@ -566,6 +641,10 @@ class ControllerNode(Node):
             msg, self.early = self.early[0], None
             self._refuse(msg, f'no joint state within {EARLY_WAIT:g} s (wall) of it, so the '
                          'start of the motion is unknown')
+        for waiting in [w for w in self.waiting if now - w.since > EARLY_WAIT]:
+            self._end_waiting(waiting, 'abort', follow.Outcome(
+                follow.INVALID_GOAL, f'no joint state within {EARLY_WAIT:g} s (wall) of '
+                'the goal, so the start of the motion is unknown'))
         age = now - self.latest_wall
         if (self.params['update_on'] == 'timer' and self.latest is not None
                 and not self.stale and age > self.params['state_timeout']):

@@ -98,12 +98,7 @@ class ControllerCore:
         ``start``). Raises TrajectoryError (reference kept), also for a trajectory that
         ends before ``now`` (as joint_trajectory_controller refuses one) and for points
         outside the joint limits (position, or the velocity given)."""
-        times, pos, vel, acc = validate_trajectory(joint_names, points, self.joint_names)
-        if self.limits is not None:
-            outside = (self.limits.position_violation(pos)
-                       or (vel is not None and self.limits.velocity_violation(vel)))
-            if outside:
-                raise TrajectoryError(f'trajectory leaves the joint limits: {outside}')
+        times, pos, vel, acc = self.check_trajectory(joint_names, points)
         now = start if now is None else now
         if start + times[-1] < now:
             raise StaleTrajectoryError(
@@ -116,6 +111,21 @@ class ControllerCore:
             self.next = (traj, start)  # takes over at the first state after ``start``
         self.trajectories_accepted += 1
         return traj
+
+    def check_trajectory(self, joint_names: Sequence[str],
+                         points: Sequence[TrajectoryPoint]) -> tuple[
+                             np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """Everything about a trajectory that needs no measured state: its joint names,
+        points and the joint limits. Returns :func:`validate_trajectory`'s arrays in this
+        controller's joint order; raises TrajectoryError (:class:`JointNamesError` for the
+        names) naming the bad value."""
+        times, pos, vel, acc = validate_trajectory(joint_names, points, self.joint_names)
+        if self.limits is not None:
+            outside = (self.limits.position_violation(pos)
+                       or (vel is not None and self.limits.velocity_violation(vel)))
+            if outside:
+                raise TrajectoryError(f'trajectory leaves the joint limits: {outside}')
+        return times, pos, vel, acc
 
     def hold(self, t: float, q: np.ndarray, qd: np.ndarray) -> None:
         """Drop the reference (and one waiting to take over) and hold position ``q`` from

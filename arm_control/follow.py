@@ -172,6 +172,27 @@ def error_code(exc: TrajectoryError) -> int:
     return INVALID_GOAL
 
 
+def check_goal(core: ControllerCore, joint_names: Sequence[str],
+               points: Sequence[TrajectoryPoint], defaults: Tolerances, *,
+               path: Sequence[JointTolerance] = (), goal: Sequence[JointTolerance] = (),
+               goal_time: float = 0.0, multi_dof_joints: Sequence[str] = ()) -> Tolerances:
+    """Everything about a goal that needs no measured state (so a goal that comes before
+    the first joint state gets the same answer as one after it): multi-DOF joints, the
+    tolerances, the joint names (INVALID_JOINTS), the points and the joint limits
+    (INVALID_GOAL). Returns the goal's tolerances; raises GoalError with the result code
+    and the bad value. Only the start time needs the state (:func:`accept_goal`)."""
+    if multi_dof_joints:
+        raise GoalError(INVALID_GOAL, f'multi_dof_trajectory names joints '
+                                      f'{list(multi_dof_joints)}; this controller has only '
+                                      f'single-DOF joints {list(core.joint_names)}')
+    tolerances = goal_tolerances(defaults, core.joint_names, path, goal, goal_time)
+    try:
+        core.check_trajectory(joint_names, points)
+    except TrajectoryError as exc:
+        raise GoalError(error_code(exc), str(exc)) from None
+    return tolerances
+
+
 @dataclass(frozen=True)
 class Accepted:
     """A goal made the reference: its trajectory, start [s, sim time] and tolerances."""
@@ -189,11 +210,8 @@ def accept_goal(core: ControllerCore, joint_names: Sequence[str],
     """Check a goal and make its trajectory ``core``'s reference, starting at ``stamp`` [s,
     sim time; 0 = now] from the measured state (q, qd) at simulated time ``now`` [s].
     Raises GoalError (the reference kept) with the result code and the reason."""
-    if multi_dof_joints:
-        raise GoalError(INVALID_GOAL, f'multi_dof_trajectory names joints '
-                                      f'{list(multi_dof_joints)}; this controller has only '
-                                      f'single-DOF joints {list(core.joint_names)}')
-    tolerances = goal_tolerances(defaults, core.joint_names, path, goal, goal_time)
+    tolerances = check_goal(core, joint_names, points, defaults, path=path, goal=goal,
+                            goal_time=goal_time, multi_dof_joints=multi_dof_joints)
     start = stamp or now
     try:
         traj = core.set_trajectory(joint_names, points, start, q, qd, now=now)

@@ -94,6 +94,36 @@ def test_a_bad_goal_is_refused_with_its_code_and_the_bad_value(kw, code, words):
     assert words in str(err)
 
 
+@pytest.mark.parametrize('kw, code', [
+    ({'names': ('joint1', 'wrist')}, follow.INVALID_JOINTS),
+    ({'names': ('joint1', 'joint1')}, follow.INVALID_JOINTS),
+    ({'points': []}, follow.INVALID_GOAL),
+    ({'points': [TrajectoryPoint(1.0, [9.0, 0.6])]}, follow.INVALID_GOAL),
+    ({'path': [JointTolerance('wrist', 0.1)]}, follow.INVALID_GOAL),
+])
+def test_a_goal_gets_the_same_code_before_the_first_state_as_after_it(kw, code):
+    from arm_dynamics.limits import JointLimits
+    limits = JointLimits.from_params({
+                                      'position_limits_lower': [-3.0, -3.0],
+                                      'position_limits_upper': [3.0, 3.0],
+                                      'velocity_limits': [10.0, 10.0]})
+    law = ControlLaw('pd', Gains(kp=(100.0, 60.0), kd=(20.0, 12.0)), TwoLinkArm(),
+                     (60.0, 20.0))
+    fresh = ControllerCore(JOINTS, law, limits=limits)  # no state yet
+    names = kw.pop('names', JOINTS)
+    points = kw.pop('points', [TrajectoryPoint(1.0, [0.3, 0.6])])
+    with pytest.raises(GoalError) as before:
+        follow.check_goal(fresh, list(names), points, DEFAULTS, **kw)
+    assert fresh.trajectory is None and fresh.trajectories_accepted == 0
+    running = ControllerCore(JOINTS, law, limits=limits)
+    running.update(10.0, Q0, np.zeros(2))
+    with pytest.raises(GoalError) as after:
+        follow.accept_goal(running, list(names), points, 0.0, 10.0, Q0, np.zeros(2),
+                           DEFAULTS, **kw)
+    assert before.value.code == after.value.code == code
+    assert str(before.value) == str(after.value)
+
+
 def test_a_goal_that_started_in_the_past_but_has_not_ended_is_joined():
     got = accept(core(), stamp=9.5)  # ends at 10.5 s, the state is at 10 s
     assert got.start == 9.5
@@ -381,3 +411,68 @@ def test_goals_and_topic_trajectories_preempt_each_other(ros, arm):
                  what='a state 1 s after the goal was reached')
     assert np.abs(np.array(states[-1].position) - [0.0, 1.1]).max() < 1e-4, (
         'the goal, not the slow topic trajectory, is followed')
+
+
+def test_a_goal_before_the_first_state_is_answered_or_held_until_it(ros, launch):
+    """Goals sent as soon as the server is ready, before any joint state: an unknown joint
+    is INVALID_JOINTS at once; a valid goal waits (the simulator starts only once it was
+    accepted) and then runs from the first state to success; a canceled waiting goal ends
+    canceled with nothing moved."""
+    from action_msgs.msg import GoalStatus
+    from control_msgs.action import FollowJointTrajectory
+    from rclpy.action import ActionClient
+    from sensor_msgs.msg import JointState
+
+    from arm_sim.client import stamp_of
+    from arm_sim.launcher import config_file
+
+    launch('controller', params_file=config_file())
+    client = ActionClient(ros.node, FollowJointTrajectory,
+                          'arm_controller/follow_joint_trajectory')
+    try:
+        ros.wait_for(client.server_is_ready, timeout=30, what='the action server')
+        status, code, text = outcome(Sent(ros, client, goal_msg(
+            [(1.0, [0, 0])], names=('joint1', 'wrist'))))
+        assert (status, code) == (GoalStatus.STATUS_ABORTED, follow.INVALID_JOINTS), text
+        assert "unknown joint names ['wrist']" in text
+        canceled = Sent(ros, client, goal_msg([(1.0, [0.2, 0.9])]))
+        cancel = canceled.handle.cancel_goal_async()
+        ros.wait_for(cancel.done, what='the cancel response')
+        status, code, text = outcome(canceled)
+        assert (status, code) == (GoalStatus.STATUS_CANCELED, follow.SUCCESSFUL), text
+        assert 'before the first joint state' in text
+        target = [0.3, 0.6]
+        held = Sent(ros, client, goal_msg([(1.0, target, [0, 0], [0, 0])],
+                                          goal_tolerance=dict(zip(JOINTS, (1e-3, 1e-3))),
+                                          goal_time=5.0))
+        assert not held.result_future.done(), 'no state yet: the goal waits'
+        states = ros.collect(JointState, 'joint_states', qos=1000)
+        launch('simulator', params_file=config_file(), params={'timing_mode': 'lockstep'})
+        status, code, text = outcome(held)
+        assert (status, code) == (GoalStatus.STATUS_SUCCEEDED, follow.SUCCESSFUL), text
+        t_reached = float(text.split('goal reached at t=')[1].split(' s')[0])
+        # It ran from the first state: reached 1 s (its duration) after it, within the
+        # goal_time_tolerance, not after a refusal and a hold.
+        assert 1.0 <= t_reached <= 1.0 + 5.0, text
+        ros.wait_for(lambda: states and stamp_of(states[-1]) >= t_reached, timeout=30,
+                     what='the state the goal was reached at')
+    finally:
+        client.destroy()
+
+
+def test_feedback_says_how_far_into_its_trajectory_the_reference_is(ros, arm):
+    from arm_sim.client import stamp_of
+    _, _, client = arm
+    slow = Sent(ros, client, goal_msg([(1000.0, [0.3, 0.6], [0, 0], [0, 0])]))
+    ros.wait_for(lambda: len(slow.feedback) > 20, what='feedback')
+    fbs = [m.feedback for m in slow.feedback]
+    into = [f.desired.time_from_start.sec + f.desired.time_from_start.nanosec * 1e-9
+            for f in fbs]
+    assert into[-1] > 0.0, 'time_from_start moves with the trajectory'
+    # Consecutive feedback: time_from_start advances exactly as the states' stamps.
+    steps = np.diff(into[-10:])
+    stamps = np.diff([stamp_of(f) for f in fbs[-10:]])
+    assert np.allclose(steps, stamps, atol=2e-9), (steps, stamps)
+    assert all(f.error.time_from_start == f.desired.time_from_start for f in fbs)
+    slow.handle.cancel_goal_async()
+    outcome(slow)
