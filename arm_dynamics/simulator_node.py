@@ -311,8 +311,9 @@ class SimulatorNode(Node):
         # and clock; until then time is held at t = 0 and nothing is published.
         self.gate = SubscriberGate(self, [self.state_pub, self.clock_pub],
                                    p['wait_for_nodes'])
-        self.create_subscription(Float64MultiArray, 'effort_controller/commands',
-                                 self._on_command, 10)
+        self.cmd_sub = self.create_subscription(Float64MultiArray,
+                                                'effort_controller/commands',
+                                                self._on_command, 10)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(SetBool, '~/hold', self._on_hold)
         self.diag = Diagnostics(self, sim_time=lambda: self.core.time)
@@ -529,7 +530,14 @@ class SimulatorNode(Node):
         clock = Clock()
         clock.clock = msg.header.stamp
         self.clock_pub.publish(clock)
-        self.keeper.on_published(self.core.time_ns, time.monotonic_ns(), new_state)
+        self.keeper.on_published(self.core.time_ns, time.monotonic_ns(), new_state,
+                                 self._links() if self.keeper.counts_links else None)
+
+    def _links(self) -> int:
+        """Matched joint_states subscribers plus effort command publishers: a rise means
+        someone new may have missed the current state or its answer (the re-send rule of
+        an untagged controller, :meth:`arm_dynamics.timing.Timekeeper.heartbeat_due`)."""
+        return self.state_pub.get_subscription_count() + self.cmd_sub.get_publisher_count()
 
     def _housekeeping(self) -> None:
         now = time.monotonic_ns()
@@ -564,7 +572,8 @@ class SimulatorNode(Node):
                               f' s for {HOLD_LEASE:g} s (wall) and nobody released it: '
                               'released (did the planner die?)')
             self._release(now)
-        if k.heartbeat_due(sim, now):
+        if k.heartbeat_due(sim, now, self._links() if k.counts_links and not k.answered
+                           else None):
             self.publish_state()
         win = k.window(sim, now)
         if win is not None:

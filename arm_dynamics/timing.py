@@ -18,7 +18,13 @@ Timing modes (:data:`TIMING_MODES`):
   comes, time stands still: the current state is re-sent every :data:`HEARTBEAT_NS` of wall
   time (so a late, restarted or stalled controller gets it) and a wait longer than
   ``report_after_ns`` is reported with the wall time waited. Nothing that the wall clock
-  does changes the recorded states.
+  does changes the recorded states. An untagged controller answers every copy of a state
+  it receives, and nothing says which copy an answer is for: a re-sent state it had
+  already got would be answered twice, the second answer taken for the next state (the
+  run would then depend on the load). So once an untagged controller has answered, a state
+  is re-sent only on evidence that someone may have missed it: a subscriber of the states
+  or a publisher of commands matched after it went out (a restarted controller), not
+  because the answer is slow (:meth:`Timekeeper.heartbeat_due`, ``links``).
 * ``real_time`` -- lockstep at wall-clock pace: every rule of lockstep, and in addition a
   period is integrated no earlier than its end is due on the wall clock (simulated time
   never runs ahead of ``wall x real_time_factor`` from the pacing anchor). A late
@@ -159,6 +165,11 @@ class Timekeeper:
         self.answered_stamp: int | None = None  # wall_clock: latest state answered [sim ns]
         self.fresh = False  # wall_clock: an untagged command came since the last period
         self.tagged = False  # wall_clock: the controller names the states it answers
+        self.untagged = False  # answered modes: the last command named no state
+        # answered modes: matched links (state subscribers + command publishers) when the
+        # current state went out, lowered to the fewest seen since (None: not counted)
+        self.links_low: int | None = None
+        self.resends = 0  # states re-sent (heartbeats)
         # counters (since start)
         self.commands = 0
         self.stale = 0
@@ -211,10 +222,21 @@ class Timekeeper:
             self.waiting_since = wall_ns
 
     # ------------------------------------------------------------------ events
-    def on_published(self, sim_ns: int, wall_ns: int, new_state: bool) -> None:
+    @property
+    def counts_links(self) -> bool:
+        """Should the node pass ``links`` (its matched state subscribers plus command
+        publishers) to :meth:`on_published` and :meth:`heartbeat_due`? Only for an
+        untagged controller in the answered modes: re-sends to it need evidence."""
+        return self.answered_mode and self.untagged
+
+    def on_published(self, sim_ns: int, wall_ns: int, new_state: bool,
+                     links: int | None = None) -> None:
         """The node published the state at ``sim_ns`` (``new_state``: time moved or the
-        state changed, not a re-send)."""
+        state changed, not a re-send); ``links``: see :attr:`counts_links`."""
         self.last_publish_ns = wall_ns
+        self.links_low = links
+        if not new_state:
+            self.resends += 1
         if new_state:
             self.waiting_since = wall_ns
             self.answered = False
@@ -231,6 +253,7 @@ class Timekeeper:
                 return STALE
             self.commands += 1
             self.started = True
+            self.untagged = answers is None
             if not self.answered:  # the first answer to this state
                 self.answered_wall = wall_ns
                 if self.waiting_since is not None:
@@ -349,13 +372,27 @@ class Timekeeper:
         return late
 
     # ------------------------------------------------------------------ wall-clock checks
-    def heartbeat_due(self, sim_ns: int, wall_ns: int) -> bool:
+    def heartbeat_due(self, sim_ns: int, wall_ns: int, links: int | None = None) -> bool:
         """Should the current state be re-sent now? (answered modes while unanswered,
-        wall_clock while holding the initial state; never while paused or held)."""
+        wall_clock while holding the initial state; never while paused or held), at most
+        every :data:`HEARTBEAT_NS` of wall time. Once an untagged controller has answered
+        (:attr:`counts_links`), only when ``links`` (matched state subscribers plus command
+        publishers, as the node counts them now) rose above the fewest seen since the state
+        went out: a new subscriber may have missed it, or a new controller's answer may
+        have gone out before we matched it. Without that evidence a slow answer is waited
+        for, never provoked twice."""
         if self.stopped(sim_ns) or self.last_publish_ns is None:
             return False
         waiting = (self.answered_mode and not self.answered) or self.holding()
-        return waiting and wall_ns - self.last_publish_ns >= HEARTBEAT_NS
+        if not waiting:
+            return False
+        if self.counts_links and links is not None:
+            if self.links_low is None or links < self.links_low:
+                self.links_low = links  # one left: fewer to compare with
+                return False
+            if links == self.links_low:
+                return False
+        return wall_ns - self.last_publish_ns >= HEARTBEAT_NS
 
     def overdue_s(self, sim_ns: int, wall_ns: int) -> float | None:
         """Answered modes: wall seconds waited for the current state's answer, once that

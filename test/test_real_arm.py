@@ -423,3 +423,54 @@ def test_a_live_push_on_the_topic_acts_from_the_next_period_as_j_transpose_f(ros
     # J^T F varies with q inside the period: the mean over its steps, near J(q_start)^T F.
     q0 = np.array(meas_at[start].position)  # no sensors: the true position
     np.testing.assert_allclose(extra, arm.jacobian(q0).T @ [8.0, -20.0], atol=0.05)
+
+
+def test_an_untagged_controller_that_stalls_answers_each_state_once(ros, launch):
+    """A naive untagged controller (it answers every state message it receives, in order)
+    stalls 0.7 s (wall) at t = 0.2 s, as a loaded machine or SIGSTOP does. The simulator
+    waits without re-sending the state (a copy would be answered too, and that answer
+    taken for the next state), so the run is the pure core's, bit for bit, and each state
+    was sent once."""
+    import time
+
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64MultiArray
+
+    launch('simulator', params={'timing_mode': 'lockstep'})
+    inbox = ros.collect(JointState, 'joint_states', qos=1000)
+    pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
+    arm = TwoLinkArm()
+    kp, kd, goal = np.array([60.0, 30.0]), np.array([10.0, 4.0]), np.array([0.3, 0.9])
+
+    def law(q, qd):
+        return kp * (goal - q) - kd * qd + arm.gravity_vector(q)
+
+    periods, stall_at = 40, 20 * PERIOD_NS
+    done = {'n': 0, 'stall_until': None}
+
+    def answer_inbox() -> bool:
+        """Answer every message not answered yet, in order, unless stalled."""
+        while done['n'] < len(inbox):
+            m = inbox[done['n']]
+            if ns_of(m) == stall_at and done['stall_until'] is None:
+                done['stall_until'] = time.monotonic() + 0.7
+            if done['stall_until'] is not None and time.monotonic() < done['stall_until']:
+                return False
+            done['n'] += 1
+            pub.publish(Float64MultiArray(data=[float(v) for v in law(
+                np.array(m.position), np.array(m.velocity))]))
+        return bool(inbox) and ns_of(inbox[-1]) >= periods * PERIOD_NS
+
+    ros.wait_for(lambda: inbox, timeout=30, what='the first state')
+    ros.wait_for(answer_inbox, timeout=60, what=f'{periods} periods answered')
+    stamps = [ns_of(m) for m in inbox]
+    # The first state may go out again before the controller is known (discovery).
+    assert stamps.count(stall_at) == 1, 'the stalled state was not re-sent'
+    by_stamp = {ns_of(m): m for m in inbox}
+    c = core(arm)
+    for k in range(periods):
+        got = by_stamp[k * PERIOD_NS]
+        assert list(got.position) == c.q.tolist() and list(got.velocity) == c.qd.tolist(), \
+            f'state at t = {k * 0.01:.2f} s: bit for bit'
+        c.set_command(law(c.q, c.qd))
+        c.advance()

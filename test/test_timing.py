@@ -67,6 +67,31 @@ def test_lockstep_wait_is_reported_after_the_threshold_and_never_moves_time():
     assert k.overdue_s(P, wall_ns=3000 * MS) is None, 'answered'
 
 
+def test_a_slow_untagged_answer_is_waited_for_not_provoked_twice():
+    """An untagged controller answers every copy of a state: once it has answered, a state
+    is re-sent only when a link (state subscriber or command publisher) matched after it
+    went out, never because the answer is slow (a second answer would be taken for the
+    next state)."""
+    k = lockstep()
+    k.on_published(0, wall_ns=0, new_state=True)
+    assert k.heartbeat_due(0, wall_ns=HEARTBEAT_NS), 'before any answer: discovery'
+    k.on_published(0, wall_ns=HEARTBEAT_NS, new_state=False)
+    assert k.on_command(answers=None, sim_ns=0, wall_ns=HEARTBEAT_NS + MS) == ADVANCE
+    assert k.counts_links, 'the controller tags nothing'
+    k.on_published(P, wall_ns=2 * HEARTBEAT_NS, new_state=True, links=3)
+    assert not k.heartbeat_due(P, wall_ns=20 * HEARTBEAT_NS, links=3), 'only slow'
+    assert not k.heartbeat_due(P, wall_ns=21 * HEARTBEAT_NS, links=2), 'one left'
+    assert k.heartbeat_due(P, wall_ns=22 * HEARTBEAT_NS, links=3), 'a new one came'
+    k.on_published(P, wall_ns=22 * HEARTBEAT_NS, new_state=False, links=3)
+    assert not k.heartbeat_due(P, wall_ns=40 * HEARTBEAT_NS, links=3)
+    assert k.resends == 2
+    # A tagged controller ignores copies of a state it answered: the timer goes on.
+    assert k.on_command(answers=P, sim_ns=P, wall_ns=40 * HEARTBEAT_NS) == ADVANCE
+    assert not k.counts_links
+    k.on_published(2 * P, wall_ns=41 * HEARTBEAT_NS, new_state=True)
+    assert k.heartbeat_due(2 * P, wall_ns=42 * HEARTBEAT_NS)
+
+
 def test_lockstep_wait_before_the_first_command_is_not_late():
     k = lockstep()
     k.on_published(0, wall_ns=0, new_state=True)
