@@ -19,8 +19,18 @@ from arm_sim.client import stamp_of as stamp
 ARM = TwoLinkArm()  # the node's defaults are the contract's arm
 
 
-def command(values) -> Float64MultiArray:
-    return Float64MultiArray(data=[float(v) for v in values])
+def command(values, answers=None) -> Float64MultiArray:
+    """An effort command; ``answers``: the JointState it answers (tagged, as arm_sim's
+    controller tags them), None = untagged."""
+    msg = Float64MultiArray(data=[float(v) for v in values])
+    if answers is not None:
+        from std_msgs.msg import MultiArrayDimension
+
+        from arm_dynamics.timing import answer_tag
+        ns = answers.header.stamp.sec * 1_000_000_000 + answers.header.stamp.nanosec
+        msg.layout.dim = [MultiArrayDimension(label=answer_tag(ns), size=len(msg.data),
+                                              stride=len(msg.data))]
+    return msg
 
 
 class Answerer:
@@ -88,7 +98,9 @@ def test_bad_commands_are_refused_and_node_keeps_publishing(ros, launch):
     pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
     ros.wait_for(lambda: states, what='first joint state')
     good = [5.0, 1.0]
-    pub.publish(command(good))
+    # Tagged: while time stands still the state is re-sent (to an untagged controller
+    # only when a new subscriber or publisher matched: arm_dynamics.timing).
+    pub.publish(command(good, answers=states[-1]))
     ros.wait_for(lambda: states[-1].effort == pytest.approx(good), what='good command applied')
     bad_inputs = {'non-finite': [math.nan, 1.0], 'infinite': [math.inf, 0.0],
                   'too short': [1.0], 'too long': [1.0, 2.0, 3.0]}
@@ -307,7 +319,9 @@ def test_lockstep_stands_still_for_a_silent_controller_and_reports_the_wait(ros,
     pub = ros.publisher(Float64MultiArray, 'effort_controller/commands')
     ros.wait_for(lambda: states, what='first joint state')
     for k in range(1, 4):  # three periods under a torque, then silence
-        pub.publish(command([8.0, 1.0]))
+        # Tagged: a silent tagged controller gets the state again (test_real_arm.py: an
+        # untagged one only when a new subscriber or publisher matched).
+        pub.publish(command([8.0, 1.0], answers=states[-1]))
         ros.wait_for(lambda: stamp(states[-1]) >= 0.01 * k - 1e-9, what=f'step {k}')
     ros.wait_for(lambda: [v for v in diag_values(diags)
                           if v.get('event') == 'waiting_for_command'
@@ -320,7 +334,7 @@ def test_lockstep_stands_still_for_a_silent_controller_and_reports_the_wait(ros,
     assert all(m.effort == pytest.approx([8.0, 1.0]) for m in states[1:]), (
         'never zero torque: the last command stays applied')
     assert len({tuple(m.position) for m in states[n - 1:]}) == 1, 'the state is re-sent as is'
-    pub.publish(command([8.0, 1.0]))
+    pub.publish(command([8.0, 1.0], answers=states[-1]))
     ros.wait_for(lambda: stamp(states[-1]) >= 0.04 - 1e-9, what='time to move on again')
     ros.wait_for(lambda: any(v.get('event') == 'controller_back' for v in diag_values(diags)),
                  what='the return reported')
