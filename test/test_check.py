@@ -22,6 +22,7 @@ from arm_sim.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / 'examples' / 'arm_check_example' / 'arm_check_example' / 'controller.py'
 BAD = ROOT / 'test' / 'check_controllers' / 'bad.py'
+TOPIC_ONLY = ROOT / 'test' / 'check_controllers' / 'topic_only.py'
 LINE = {'name': 'l', 'start_tip': [0.5, 1.2],
         'goals': [{'tip': [1.4, 0.2], 'mode': 'straight_line', 'duration': 0.8}],
         'thresholds': {'line_deviation': 0.01}}

@@ -58,6 +58,9 @@ START_WAIT = 60.0  # s (wall): the suite's own nodes to start and match
 VERDICT_WAIT = 1.0
 VERDICT_SENDS = 3
 STATUS_TOPIC = '/arm_controller/trajectory_status'
+#: The nodes the harness runs (and its own client's): any other node is the controller's.
+SUITE_NODES = frozenset({'simulator', 'planner', 'recorder', 'visualizer', 'check_reference',
+                         'arm_sim_cli'})
 FAULTS = ('runaway', 'diverged')
 #: The scenario's name, in the environment of the controller the harness starts.
 SCENARIO_ENV = 'ARM_SIM_CHECK_SCENARIO'
@@ -248,8 +251,7 @@ class ScenarioRun(Demo):
         # know where the motion starts).
         self._start('simulator', wait_for_nodes=['recorder', 'planner', 'check_reference'],
                     **sim)
-        # Trajectories go out once the reference node has matched them: it grades them.
-        self._start('planner', wait_for_nodes=['check_reference'])
+        # The planner starts in _drive, once the controller under test is up.
         self.procs.append(NodeProcess(
             'check_reference', params_file=self.params_files,
             node_params={'check_reference': {'use_sim_time': True}},
@@ -341,6 +343,12 @@ class ScenarioRun(Demo):
         # The controller starts with the suite: the simulator holds t = 0 until the
         # recorder has matched it, and lockstep makes the run independent of who came first.
         self._start_controller(c)
+        # Trajectories go out once the reference node (it grades them) and every node of
+        # the controller under test that takes them on the topic have matched them: a
+        # volatile trajectory published before a subscription is matched never reaches it,
+        # and a controller that gives no verdicts cannot say it missed one.
+        takers = self._trajectory_takers(c)
+        self._start('planner', wait_for_nodes=['check_reference', *takers])
         for node, topic in needed:
             self._wait(functools.partial(c.subscribed, topic, node),
                        f'the {node} to subscribe {topic}')
@@ -377,6 +385,25 @@ class ScenarioRun(Demo):
             self.echo(f'    t = {at:5.2f} s  goal {k}: {goal.mode} to '
                       f'({goal.tip[0]:g}, {goal.tip[1]:g}) m, {duration:.2f} s of motion')
         self._run_to_time(c, t_next)
+
+    def _trajectory_takers(self, c: SuiteClient) -> list[str]:
+        """The nodes of the controller under test that subscribe
+        ``arm_controller/joint_trajectory`` (as ``/namespace/name``), read from the graph
+        once it lists a node of the controller subscribing ``joint_states`` (every
+        controller does, and creates its subscriptions before it can get a state)."""
+        def others(topic: str) -> set[str]:
+            return {f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                    for i in c.node.get_subscriptions_info_by_topic(f'{c.ns}/{topic}')
+                    if i.node_name not in SUITE_NODES}
+
+        try:
+            self._wait(lambda: others('joint_states'),
+                       'your controller to subscribe joint_states')
+        except SuiteError:
+            raise ScenarioFailed(f'no node of your controller subscribed joint_states within '
+                                 f'{START_WAIT:g} s (wall) of its start (ROS domain '
+                                 f'{self.domain}, localhost discovery)') from None
+        return sorted(others('arm_controller/joint_trajectory'))
 
     def _every_verdict(self, c: SuiteClient, msg, k: int) -> None:
         """Every node publishing trajectory_status (but the reference node, already
