@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Duration
@@ -532,9 +533,9 @@ class ControllerNode(Node):
 
     def _refuse(self, msg: JointTrajectory, reason: str, start_time: float | None = None,
                 stale: bool = False):
-        self.diag.problem('rejected_trajectory', f'trajectory refused: {reason}',
-                          **({} if start_time is None else
-                             {'start_time': f'{start_time:.9f}'}))
+        extra: dict[str, Any] = ({} if start_time is None else
+                                 {'start_time': f'{start_time:.9f}'})
+        self.diag.problem('rejected_trajectory', f'trajectory refused: {reason}', **extra)
         self._status(msg, DiagnosticStatus.WARN, f'refused: {reason}', start_time,
                      stale=str(stale).lower())
 

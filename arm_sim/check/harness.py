@@ -378,6 +378,7 @@ class ScenarioRun(Demo):
             self._wait(lambda: len(c.events_of('check_reference', 'trajectory_accepted'))
                        > accepted, f'the trajectory of goal {k} to be accepted')  # noqa: B023
             self._every_verdict(c, c.trajectories[-1], k)
+            self._reach_silent_takers(c, c.trajectories[-1], k)
             end = c.trajectories[-1].points[-1].time_from_start
             duration = end.sec + end.nanosec * 1e-9
             t_next = round((at + duration + sc.settle) / PERIOD) * PERIOD
@@ -438,6 +439,26 @@ class ScenarioRun(Demo):
         if missing():
             self.warnings.append(f'no verdict from {", ".join(missing())} on the trajectory '
                                  f'of goal {k} in {VERDICT_SENDS + 1} sends')
+
+    def _reach_silent_takers(self, c: SuiteClient, msg, k: int) -> None:
+        """A node of the controller under test that takes trajectories on the topic but
+        gives no verdicts cannot say it missed one (its subscription matched the planner
+        too late): once the harness's own publisher has matched every subscription its
+        graph lists, it sends ``msg`` once more, time standing paused at the goal, so each
+        of them has it at least once (the same trajectory again changes nothing for a
+        controller that had it: same stamp, same held state). Sent for every goal when
+        there are such nodes, so every run's bag is alike."""
+        def silent() -> list[str]:
+            givers = {i.node_name for i in c.node.get_publishers_info_by_topic(STATUS_TOPIC)}
+            return sorted({i.node_name for i in c.node.get_subscriptions_info_by_topic(
+                self.traj_pub.topic_name)} - givers - SUITE_NODES)
+
+        if not silent():
+            return
+        listed = len(c.node.get_subscriptions_info_by_topic(self.traj_pub.topic_name))
+        self._wait(lambda: self.traj_pub.get_subscription_count() >= listed,
+                   f'the trajectory of goal {k} to reach {", ".join(silent())}')
+        self.traj_pub.publish(msg)
 
     def _run_to_time(self, c: SuiteClient, t: float) -> None:
         """Let simulated time run to ``t`` (the simulator pauses there) and wait for it."""
