@@ -17,7 +17,7 @@ import argparse
 import json
 import sys
 
-EXIT_OK, EXIT_USAGE, EXIT_NOTHING, EXIT_UNREADABLE = 0, 2, 3, 4
+from arm_common.exits import EXIT_NOTHING, EXIT_OK, EXIT_UNREADABLE, EXIT_USAGE
 
 
 def reason(exc: BaseException) -> str:

@@ -96,6 +96,42 @@ def _friction_values(name: str, value: object, n: int) -> tuple[float, ...]:
     return finite_tuple(name, value, n, minimum=0.0)
 
 
+# ------------------------------------------------------------------- the parameter rules
+# The rules of the robot parameters ``coulomb_friction`` / ``static_friction`` (the
+# simulator's, the sweeps' scenario settings, the parameter validation): stated here once.
+
+#: The ``static_friction`` rule in words, as the parameter descriptions state it.
+STATIC_FRICTION_RULE = '0 = its coulomb_friction, else >= it'
+
+
+def static_friction_used(static: Sequence[float],
+                         coulomb: Sequence[float]) -> tuple[float, ...]:
+    """The break-away friction [N m] of each joint that the ``static_friction`` parameter
+    gives: its value, a 0 standing for the joint's ``coulomb_friction`` [N m] (Coulomb
+    friction that sticks at zero velocity, no extra break-away torque)."""
+    return tuple(float(c) if s == 0 else float(s) for s, c in zip(static, coulomb))
+
+
+def static_friction_problem(static: Sequence[float], coulomb: Sequence[float], *,
+                            zero_is_coulomb: bool = True) -> str | None:
+    """Why ``static`` [N m] is below ``coulomb`` [N m] on a joint (the first such), or None:
+    the break-away torque is at least the sliding one.
+
+    ``zero_is_coulomb`` (default): the values as the parameters give them, a 0 being the
+    joint's Coulomb value (:func:`static_friction_used`), numbers shown short (``:g``);
+    else the values used themselves (a 0 is 0, as :class:`JointFriction` takes them),
+    numbers shown exactly."""
+    used = static_friction_used(static, coulomb) if zero_is_coulomb else tuple(static)
+    for i, (s, c) in enumerate(zip(used, coulomb)):
+        if s < c:
+            shown = (f'{float(s):g}', f'{float(c):g}') if zero_is_coulomb else (
+                repr(float(s)), repr(float(c)))
+            return (f'static_friction[{i}] = {shown[0]} N m is below coulomb_friction[{i}] = '
+                    f'{shown[1]} N m: the break-away torque is at least the sliding one'
+                    + (' (0 = equal to it)' if zero_is_coulomb else ''))
+    return None
+
+
 def _empty(value: object) -> bool:
     return value is None or (hasattr(value, '__len__') and len(value) == 0)
 
@@ -130,13 +166,9 @@ class JointFriction:
         n = len(coulomb)
         c = np.array(_friction_values('coulomb_friction', coulomb, n), dtype=float)
         s = np.array(_friction_values('static_friction', self.static, n), dtype=float)
-        below = np.flatnonzero(s < c)
-        if below.size:
-            i = int(below[0])
-            raise ValueError(
-                f'static_friction[{i}] = {float(s[i])!r} N m is below coulomb_friction[{i}] = '
-                f'{float(c[i])!r} N m: the break-away (static) friction must be >= the sliding '
-                '(Coulomb) friction')
+        problem = static_friction_problem(s.tolist(), c.tolist(), zero_is_coulomb=False)
+        if problem:
+            raise ValueError(problem)
         active = s > 0.0
         for arr in (c, s, active):
             arr.setflags(write=False)
@@ -152,16 +184,17 @@ class JointFriction:
         """The friction of an ``n``-joint arm from robot parameters by name.
 
         ``coulomb_friction`` (n,) N m: missing or empty -> zeros. ``static_friction`` (n,)
-        N m: missing or empty -> equal to ``coulomb_friction`` (Coulomb friction that
-        sticks at zero velocity, no extra break-away torque). A non-empty list must have
-        exactly ``n`` values: a shorter one is refused, not padded (more likely a mistake
-        than a wish). Other keys are ignored.
+        N m: missing or empty -> equal to ``coulomb_friction``, and so is each 0
+        (:func:`static_friction_used`: Coulomb friction that sticks at zero velocity, no
+        extra break-away torque). A non-empty list must have exactly ``n`` values: a
+        shorter one is refused, not padded (more likely a mistake than a wish). Other keys
+        are ignored.
         """
         coulomb = params.get('coulomb_friction')
         c = _friction_values('coulomb_friction', (0.0,) * n if _empty(coulomb) else coulomb, n)
         static = params.get('static_friction')
-        return cls(coulomb=np.array(c), static=np.array(
-            c if _empty(static) else _friction_values('static_friction', static, n)))
+        s = c if _empty(static) else _friction_values('static_friction', static, n)
+        return cls(coulomb=np.array(c), static=np.array(static_friction_used(s, c)))
 
     @classmethod
     def none(cls, n: int) -> JointFriction:

@@ -14,6 +14,7 @@ from dataclasses import fields
 from typing import Any
 
 from arm_common.params import ParamSpec, resolve
+from arm_dynamics.friction import STATIC_FRICTION_RULE, static_friction_problem
 from arm_dynamics.limits import (
     DEFAULT_EFFORT,
     DEFAULT_POSITION_LOWER,
@@ -83,14 +84,8 @@ def _frame_names(robot: Mapping[str, Any]) -> str | None:
 
 def _static_band(robot: Mapping[str, Any]) -> str | None:
     """Why ``static_friction`` is below ``coulomb_friction`` on a joint (0 = the Coulomb
-    value: allowed)."""
-    pairs = zip(robot['static_friction'], robot['coulomb_friction'])
-    low = [(i, s, c) for i, (s, c) in enumerate(pairs) if 0 < s < c]
-    if not low:
-        return None
-    i, s, c = low[0]
-    return (f'static_friction[{i}] = {s:g} N m is below coulomb_friction[{i}] = {c:g} N m: '
-            'the break-away torque is at least the sliding one (0 = equal to it)')
+    value: allowed): :func:`~arm_dynamics.friction.static_friction_problem`."""
+    return static_friction_problem(robot['static_friction'], robot['coulomb_friction'])
 
 
 #: Robot description shared by every node; read-only. The per-joint ones have one value
@@ -129,8 +124,8 @@ ROBOT_PARAMS: tuple[ParamSpec, ...] = (
           'link side: -c sign(qd) while it slips, stick/slip exact (arm_dynamics.friction)',
           'N m', minimum=0.0, maximum=1e4),
     _pair('static_friction', (0.0, 0.0), 'Break-away (static) friction of each joint: a '
-          'joint at rest stays stuck while the torque needed to hold it is within it; 0 = '
-          'its coulomb_friction, else >= it', 'N m', minimum=0.0, maximum=1e4,
+          'joint at rest stays stuck while the torque needed to hold it is within it; '
+          + STATIC_FRICTION_RULE, 'N m', minimum=0.0, maximum=1e4,
           relation=_static_band),
     _pair('effort_limits', DEFAULT_EFFORT, 'Joint torque limits (applied torque is clipped)',
           'N m', minimum=0.0, strict_min=True, maximum=1e6),

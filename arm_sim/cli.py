@@ -15,12 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
+from arm_common.exits import (
+    EXIT_ERROR,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_REFUSED,
+    EXIT_TIMEOUT,
+    EXIT_USAGE,
+)
 from arm_dynamics.timing import TIMING_MODES
-
-EXIT_ERROR = 1
-EXIT_USAGE = 2
-EXIT_REFUSED = 3
-EXIT_TIMEOUT = 4
 
 
 class CliError(Exception):
@@ -125,7 +128,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
           'PlotJuggler: Load data -> the .mcap, load config/plotjuggler/arm_layout.xml (or '
           'plot /joint_states/joint1/position against '
           f'/arm_controller/reference/joint1/position); ROS 2: ros2 bag info {bag}')
-    return 0
+    return EXIT_OK
 
 
 def cmd_bringup(args: argparse.Namespace) -> int:
@@ -236,7 +239,7 @@ def cmd_bringup(args: argparse.Namespace) -> int:
                 print(line[line.index('timing: '):])
     if args.record:
         print(f'bag: {out / "bag"}  (arm-sim analyze {out / "bag"})')
-    return 0
+    return EXIT_OK
 
 
 #: Nodes whose exit leaves the suite running (reported): the live view is an extra.
@@ -406,7 +409,7 @@ def cmd_goal(args: argparse.Namespace) -> int:
         print(f'reached: tip at ({tip[0]:.4f}, {tip[1]:.4f}) m, '
               f'{np.hypot(*(tip - goal)) * 1e3:.2f} mm from the goal, at simulated t = '
               f'{client.sim_time:.2f} s')
-        return 0
+        return EXIT_OK
     finally:
         client.close()
 
@@ -571,7 +574,7 @@ def main(argv: list[str] | None = None) -> int:
         return exc.code
     except KeyboardInterrupt:
         print(f'arm-sim {args.command}: interrupted', file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
 
 
 if __name__ == '__main__':

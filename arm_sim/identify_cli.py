@@ -28,12 +28,12 @@ from typing import IO, Any
 import numpy as np
 import yaml
 
+from arm_common.exits import EXIT_NOTHING, EXIT_OK, EXIT_UNREADABLE, EXIT_USAGE
 from arm_control.model_params import MODEL_KEYS as CONTROLLER_MODEL_KEYS
 from arm_dynamics import identify as ident
 from arm_dynamics.robot import ROBOT_DEFAULTS, ROBOT_PARAMS, resolve_robot
 from arm_dynamics.two_link import TwoLinkArm
 
-EXIT_OK, EXIT_USAGE, EXIT_DATA, EXIT_UNREADABLE = 0, 2, 3, 4
 #: The controller's model parameters the params file sets (``control_model.<key>``:
 #: :data:`arm_control.model_params.MODEL_KEYS` plus gravity).
 MODEL_KEYS = (*CONTROLLER_MODEL_KEYS, 'gravity')
@@ -195,17 +195,17 @@ def _read(path: str) -> tuple[ident.HoldPeriods, dict | None, list[str]]:
     js = bag.joint_states
     if js is None or len(js) == 0:
         raise IdentifyError(f'{path}: no joint states (sensor_msgs/JointState on '
-                            'joint_states) to identify from', EXIT_DATA)
+                            'joint_states) to identify from', EXIT_NOTHING)
     if js.position.shape[1] != 2:
         raise IdentifyError(f'{path}: joint states of {js.position.shape[1]} joints; '
-                            'identify takes the 2-R arm (model two_link)', EXIT_DATA)
+                            'identify takes the 2-R arm (model two_link)', EXIT_NOTHING)
     order = np.argsort(js.stamp, kind='stable')
     periods = ident.hold_periods(js.stamp[order], js.position[order], js.velocity[order],
                                  js.effort[order])
     if len(periods) == 0:
         raise IdentifyError(f'{path}: no control period with position, velocity and effort '
                             'at both ends (identify needs the states the simulator '
-                            'publishes)', EXIT_DATA)
+                            'publishes)', EXIT_NOTHING)
     return periods, bag.robot, list(bag.warnings)
 
 
@@ -228,7 +228,8 @@ def _nominal(args: argparse.Namespace, record: dict | None, warnings: list[str]
             robot = resolve_robot({k: v for k, v in record.items() if k in known})
         except ValueError as exc:
             raise IdentifyError(f"{args.bags[0]}: its robot record is unusable: {exc}; give "
-                                'the nominal arm with --nominal PARAMS.yaml', EXIT_DATA) from None
+                                'the nominal arm with --nominal PARAMS.yaml',
+                                EXIT_NOTHING) from None
         source = f"{args.bags[0]}'s robot record"
     else:
         robot = dict(ROBOT_DEFAULTS)
@@ -237,7 +238,7 @@ def _nominal(args: argparse.Namespace, record: dict | None, warnings: list[str]
                         'robot defaults (give another with --nominal PARAMS.yaml)')
     if robot.get('model', 'two_link') != 'two_link':
         raise IdentifyError(f"the nominal arm's model is {robot['model']!r}: identify takes "
-                            'the 2-R arm (model two_link)', EXIT_DATA)
+                            'the 2-R arm (model two_link)', EXIT_NOTHING)
     return TwoLinkArm.from_params(robot), source
 
 
@@ -272,7 +273,7 @@ def identify_bags(args: argparse.Namespace) -> Result:
         resolve_robot(model_values(model))  # what the controller checks the values with
     except ValueError as exc:
         names = ', '.join(args.bags)
-        raise IdentifyError(f'{names}: {exc}', EXIT_DATA) from None
+        raise IdentifyError(f'{names}: {exc}', EXIT_NOTHING) from None
     result = Result(list(args.bags), nominal, source, periods, est, mass, se, model,
                     warnings=warnings)
     if args.holdout:

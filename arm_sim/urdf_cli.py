@@ -19,12 +19,10 @@ from typing import Any
 
 import yaml
 
+from arm_common.exits import EXIT_OK, EXIT_USAGE
 from arm_common.params import command_line_parameters
 from arm_dynamics.robot import ROBOT_PARAMS
 from arm_dynamics.urdf import urdf_from_params
-
-EXIT_OK = 0
-EXIT_USAGE = 2
 
 
 def robot_params_from_file(path: str | Path) -> dict[str, Any]:

@@ -33,7 +33,7 @@ def test_the_shipped_suite_is_the_lectures():
     assert [s.name for s in suite.scenarios] == [
         'regulation', 'line_slow', 'line_fast', 'goal_while_moving', 'push', 'noisy_arm']
     fast = suite.select(['line_fast']).scenarios[0]
-    assert fast.thresholds == {'final_error': 0.003, 'peak_torque': [57.0, 19.0],
+    assert fast.thresholds == {'final_tip_error': 0.003, 'peak_torque': [57.0, 19.0],
                                'saturation': 0.01, 'line_deviation': 0.0105}
     assert 'settling_time' in suite.scenarios[0].thresholds
     assert suite.scenarios[4].disturbances['pushes'][0]['tip_force'] == [0.0, -30.0]
@@ -83,7 +83,7 @@ def _results() -> list[ScenarioResult]:
     ok = ScenarioResult('line_fast', 'fast', [MetricResult('line_deviation', 0.0035, 0.0105,
                                                            True)], sim_time=2.3)
     bad = ScenarioResult('regulation', 'reg', [
-        MetricResult('final_error', 0.075, 0.003, False),
+        MetricResult('final_tip_error', 0.075, 0.003, False),
         MetricResult('settling_time', None, 3.45, False, 'never settles'),
         MetricResult('peak_torque', [51.5, 10.6], [57.0, 19.0], True)], sim_time=4.33)
     crashed = ScenarioResult('push', '', reason='the controller exited with code 1')
@@ -99,13 +99,108 @@ def test_junit_has_one_testcase_per_scenario_with_the_failing_metrics(tmp_path):
     assert cases['line_fast'].find('failure') is None
     fail = cases['regulation'].find('failure')
     assert fail is not None
-    assert fail.get('message') == ('final_error 75.0 mm > 3.0 mm; settling_time: never '
+    assert fail.get('message') == ('final_tip_error 75.0 mm > 3.0 mm; settling_time: never '
                                    'settles')
     assert cases['push'].find('failure').get('message') == \
         'the controller exited with code 1'
     text = table(_results())
     assert 'regulation  peak_torque' in text and '1 of 3 scenarios passed' in text
     assert '## regulation: FAIL' in markdown(_results(), suite, tmp_path)
+
+
+def test_the_docs_graded_metric_table_is_the_suites():
+    from arm_sim.check.suite import graded_metrics_markdown
+
+    text = (ROOT / 'docs' / 'check.md').read_text()
+    marker = '<!-- generated: arm_sim.check.suite.graded_metrics_markdown -->\n'
+    assert marker in text, 'docs/check.md lacks the generated metric table'
+    block = text.split(marker, 1)[1].split('<!-- end generated -->', 1)[0]
+    assert block == graded_metrics_markdown(), (
+        f'docs/check.md is out of date; replace its block with:\n{graded_metrics_markdown()}')
+
+
+def test_each_graded_metric_is_an_analyze_metric_by_name_and_no_name_means_two_things():
+    from arm_bag.metrics import DISTURBANCE_METRICS
+    from arm_bag.metrics import METRICS as ANALYZE
+    from arm_sim.check.suite import METRICS
+
+    analyze = {m.name: m for m in (*ANALYZE, *DISTURBANCE_METRICS)}
+    assert [m.name for m in METRICS.values() if m.source is None] == ['final_tip_error']
+    for m in METRICS.values():
+        if m.source is None:
+            continue
+        src = analyze[m.source]
+        assert (m.when, m.unit) == (src.when, 'fraction' if src.fmt == 'pct' else src.unit)
+        assert m.per_joint == src.per_joint or (m.scope == 'run' and src.per_joint)
+    # A name both have is one quantity: the same unit (final_error was m here, rad there).
+    for name in set(METRICS) & set(analyze):
+        assert METRICS[name].unit == analyze[name].unit, name
+
+
+def test_grade_takes_each_metric_by_its_analyze_name_and_the_tip_from_the_last_sample():
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from arm_dynamics import TwoLinkArm
+    from arm_sim.check.grade import grade
+
+    arm = TwoLinkArm()
+    q_end = [-0.4, 1.2]
+    tip = arm.forward_kinematics(np.array(q_end))
+    goal = [float(tip[0]) + 0.003, float(tip[1]) - 0.004]   # 5 mm from the tip
+    seg = SimpleNamespace(values={'deviation_max': 0.002, 'settling_time_overall': None},
+                          series={'q': [[0.0, 0.0], q_end]})
+    report = SimpleNamespace(segments=[seg], run={'torque_peak': [40.0, 9.0],
+                                                  'saturated_fraction': [0.0, 0.02]},
+                             pushes=[{'peak_deviation': 0.1, 'recovery_time': 0.5},
+                                     {'peak_deviation': 0.3, 'recovery_time': 0.4}])
+    scenario = parse_suite({'scenarios': [{
+        'name': 's', 'goals': [{'tip': goal, 'mode': 'straight_line'}],
+        'disturbances': {'pushes': [{'at': 1.0, 'tip_force': [0.0, -30.0],
+                                     'shape': 'pulse', 'duration': 0.1}]},
+        'thresholds': {'final_tip_error': 0.006, 'line_deviation': 0.001,
+                       'peak_torque': [57.0, 19.0], 'saturation': 0.01,
+                       'push_deviation': 0.5, 'push_recovery': 1.0}}]}).scenarios[0]
+    got = {m.name: (m.value, m.passed) for m in grade(report, scenario, arm)}
+    assert got['final_tip_error'][0] == pytest.approx(0.005, abs=1e-12)
+    assert got['final_tip_error'][1]
+    assert got['line_deviation'] == (0.002, False)
+    assert got['peak_torque'] == ([40.0, 9.0], True)
+    assert got['saturation'] == (0.02, False)      # the largest joint
+    assert got['push_deviation'] == (0.3, True)    # the largest push
+    assert got['push_recovery'] == (0.5, True)
+    # An undefined source value says why; a report without segments measured nothing.
+    regulation = parse_suite({'scenarios': [{'name': 'r', 'goals': [{'tip': goal}],
+                                             'thresholds': {'settling_time': 1.0}}]})
+    result = grade(report, regulation.scenarios[0], arm)[0]
+    assert (result.value, result.passed, result.note) == (None, False, 'never settles')
+    empty = SimpleNamespace(segments=[], run={}, pushes=[])
+    notes = {m.name: m.note for m in grade(empty, scenario, arm)}
+    assert notes['final_tip_error'] == notes['line_deviation'] == 'not measured'
+
+
+def test_a_suite_with_the_old_name_final_error_is_read_with_one_warning(tmp_path, capsys):
+    old = {'defaults': {'thresholds': {'final_error': 0.003}}, 'scenarios': [LINE]}
+    suite = parse_suite(old, 'old.yaml')
+    assert suite.scenarios[0].thresholds == {'final_tip_error': 0.003,
+                                             'line_deviation': 0.01}
+    assert suite.notes == ('old.yaml: defaults: thresholds.final_error: final_error is '
+                           'deprecated, now final_tip_error (read as it); rename it',)
+    assert parse_suite({'scenarios': [LINE]}).notes == ()
+    with pytest.raises(SuiteFileError, match=r'thresholds\.final_error: the old name of '
+                       'final_tip_error, which is given too'):
+        parse_suite({'scenarios': [{**LINE, 'thresholds': {'final_error': 0.003,
+                                                           'final_tip_error': 0.003}}]})
+    path = tmp_path / 'old.yaml'
+    path.write_text('scenarios: [{name: x, goals: [{tip: [1, 1]}], thresholds: '
+                    '{final_error: 0.003}}]\n')
+    assert main(['check', '--suite', str(path), '--list']) == 0
+    out = capsys.readouterr()
+    assert out.err == (f'warning: {path}: scenarios[0] (x): thresholds.final_error: '
+                       'final_error is deprecated, now final_tip_error (read as it); '
+                       'rename it\n')
+    assert 'final_tip_error <= 0.003' in out.out
 
 
 def test_the_pytest_plugin_is_registered_and_imports_light():
@@ -183,12 +278,29 @@ def test_check_grades_the_example_and_its_sign_flipped_copy(tmp_path):
 
 
 
+@pytest.mark.process
+@pytest.mark.timeout(900)
+def test_a_topic_only_controller_passes_with_the_same_report_each_time(tmp_path):
+    """A third party's controller that takes arm_controller/joint_trajectory itself, gives
+    no verdicts and tags no command: it gets every goal's trajectory (the planner waits
+    for its subscription), and its run does not depend on the machine's load: two runs
+    give the same results.json (simulated-time figures only)."""
+    docs = []
+    for name in ('topic_only', 'topic_only_again'):
+        res, doc, xml = _check(tmp_path, name, '--', sys.executable, str(TOPIC_ONLY))
+        assert res.returncode == 0, res.stdout + res.stderr
+        assert doc['passed'] and len(doc['scenarios']) == 6
+        assert not xml.findall('.//failure')
+        docs.append((tmp_path / name / 'results.json').read_text())
+    assert docs[0] == docs[1]
+
+
 #: A scenario per behaviour of bad.py (``bad.py scenario`` takes its behaviour from the
 #: scenario's name, $ARM_SIM_CHECK_SCENARIO): a short move, budgets short where the
 #: behaviour waits for one, and the reason each must fail with.
 BAD_SUITE = {
     'name': 'bad_controllers',
-    'defaults': {'settle': 0.3, 'budget': 30.0, 'thresholds': {'final_error': 0.003}},
+    'defaults': {'settle': 0.3, 'budget': 30.0, 'thresholds': {'final_tip_error': 0.003}},
     'scenarios': [{'name': name, 'start_tip': [0.5, 1.2], 'goals': [{'tip': [0.55, 1.15]}],
                    **extra} for name, extra in [
         ('silent', {'budget': 2.0}), ('nan', {}), ('wrong_length', {}), ('crash', {}),

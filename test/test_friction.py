@@ -23,6 +23,8 @@ from arm_dynamics.friction import (
     JointFriction,
     friction_step,
     friction_step_batch,
+    static_friction_problem,
+    static_friction_used,
 )
 from arm_dynamics.planar_chain import PlanarChain
 from arm_dynamics.two_link import TwoLinkArm, TwoLinkBatch
@@ -481,6 +483,37 @@ def test_static_below_coulomb_is_refused_naming_both():
         JointFriction(coulomb=[1.0, 0.8], static=[2.0, 0.5])
     with pytest.raises(ValueError, match=r'static_friction\[0\] = 1\.0 .*coulomb_friction'):
         JointFriction.from_params({'coulomb_friction': [2.0, 0.0],
+                                   'static_friction': [1.0, 0.0]}, 2)
+
+
+def test_one_static_friction_rule_for_robot_parameters_simulator_and_sweeps():
+    """``static_friction`` 0 is the joint's Coulomb value, and a non-zero one below it is
+    refused with one message, the same in the robot parameters (``resolve_robot``), the
+    simulator's friction (``JointFriction.from_params``) and a sweep's scenario."""
+    from arm_dynamics.robot import resolve_robot
+    from arm_sim.sweep import PF, PS, Scenario
+
+    reg = dict(task='regulation', start=PS, goal=PF, duration=1.0, hold=1.0)
+    for c, s, used in [((1.5, 0.5), (0.0, 0.0), (1.5, 0.5)),
+                       ((1.5, 0.5), (1.95, 0.0), (1.95, 0.5)),
+                       ((0.0, 0.0), (0.5, 0.0), (0.5, 0.0))]:
+        assert static_friction_used(s, c) == used
+        robot = resolve_robot({'coulomb_friction': list(c), 'static_friction': list(s)})
+        assert JointFriction.from_params(robot, 2) == JointFriction(coulomb=c, static=used)
+        assert Scenario(**reg, coulomb_friction=c, static_friction=s).friction() == \
+            JointFriction(coulomb=c, static=used)
+    message = ('static_friction[0] = 1 N m is below coulomb_friction[0] = 1.5 N m: the '
+               'break-away torque is at least the sliding one (0 = equal to it)')
+    assert static_friction_problem((1.0, 0.0), (1.5, 0.5)) == message
+    assert static_friction_problem((0.0, 0.5), (1.5, 0.5)) is None
+    with pytest.raises(ValueError) as err:
+        resolve_robot({'coulomb_friction': [1.5, 0.5], 'static_friction': [1.0, 0.0]})
+    assert message in str(err.value)
+    with pytest.raises(ValueError) as err:
+        Scenario(**reg, coulomb_friction=(1.5, 0.5), static_friction=(1.0, 0.0))
+    assert str(err.value) == message
+    with pytest.raises(ValueError, match=r'static_friction\[0\] = 1\.0 N m is below '):
+        JointFriction.from_params({'coulomb_friction': [1.5, 0.5],
                                    'static_friction': [1.0, 0.0]}, 2)
 
 

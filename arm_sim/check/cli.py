@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import argparse
 import shlex
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-EXIT_PASS, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
+from arm_common.exits import EXIT_ERROR, EXIT_OK
 
 DESCRIPTION = """\
 Grade any controller over its ROS topics. For each scenario of the suite, start the
@@ -17,8 +18,8 @@ simulator (lockstep), planner, recorder, visualizer and the harness's reference 
 private ROS domain (localhost-only discovery), start your controller with CMD in that
 environment (ROS_DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST,
 ARM_SIM_CHECK_SCENARIO=<scenario>), send the goals at exact simulated times, stop
-everything and grade the recorded run: final error [mm], line deviation [mm], settling
-time [s], peak torque [N m], saturation [%], push response.
+everything and grade the recorded run: final tip error [mm], line deviation [mm],
+settling time [s], peak torque [N m], saturation [%], push response.
 Each scenario runs on fresh nodes, your controller restarted too. Without "-- CMD" it
 waits for a controller you start by hand (it prints the domain and the topics; it must
 then handle simulated time starting again at 0 for each scenario).
@@ -98,6 +99,8 @@ def run_check(args: argparse.Namespace, domain_of: Callable[[], int],
             suite = suite.select(args.scenario)
     except SuiteFileError as exc:
         raise CheckUsageError(str(exc)) from None
+    for note in suite.notes:  # e.g. an old metric name: read, said once
+        print(f'warning: {note}', file=sys.stderr)
     if args.budget is not None:
         if not args.budget > 0 or args.budget == float('inf'):
             raise CheckUsageError(f'--budget must be a positive number of seconds, got '
@@ -108,7 +111,7 @@ def run_check(args: argparse.Namespace, domain_of: Callable[[], int],
         for s in suite.scenarios:
             limits = ', '.join(f'{k} <= {v}' for k, v in s.thresholds.items())
             print(f'{s.name}: {s.description} [{limits}]')
-        return EXIT_PASS
+        return EXIT_OK
     if command:
         import shutil
 
@@ -141,4 +144,4 @@ def run_check(args: argparse.Namespace, domain_of: Callable[[], int],
     print(table(results))
     print(f'\ndone in {time.monotonic() - started:.0f} s. report: {report / "summary.md"}'
           + (f'; JUnit: {junit_path}' if junit_path else ''))
-    return EXIT_PASS if all(r.passed for r in results) else EXIT_FAIL
+    return EXIT_OK if all(r.passed for r in results) else EXIT_ERROR

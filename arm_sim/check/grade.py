@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from arm_sim.check.suite import METRICS, Scenario
+from arm_sim.check.suite import METRICS, GradedMetric, Scenario
 
 
 @dataclass
@@ -81,40 +81,44 @@ class ScenarioResult:
                 'warnings': self.warnings}
 
 
+def measured(report, metric: GradedMetric) -> tuple[Any, bool]:
+    """(value, found) of a graded metric's :mod:`arm_bag.metrics` ``source`` in
+    ``report`` (SI; per joint a list, else a float; None: undefined). ``found``: the
+    report has where it comes from (a segment, pushes), so an undefined value is the
+    metric's ``undefined`` rather than 'not measured'."""
+    name = metric.source
+    if metric.scope == 'segment':
+        seg = report.segments[-1] if report.segments else None
+        return (None, False) if seg is None else (seg.values.get(name), True)
+    if metric.scope == 'push':
+        values = [p.get(name) for p in report.pushes or []]
+        if not values:
+            return None, False
+        return (None if None in values else max(values)), True
+    value = report.run.get(name)  # scope 'run': (J,) per joint
+    if not value:
+        return None, True
+    values = [float(v) for v in value]
+    return (values if metric.per_joint else max(values)), True
+
+
 def grade(report, scenario: Scenario, arm) -> list[MetricResult]:
     """The scenario's thresholds applied to ``report`` (an :class:`arm_bag.analysis.
-    Report` of its bag); ``arm`` gives the tip (forward kinematics)."""
-    seg = report.segments[-1] if report.segments else None
-    values: dict[str, Any] = {}
-    notes: dict[str, str] = {}
-    if seg is not None and len(seg.series.get('q', ())):
-        q = np.asarray(seg.series['q'][-1], dtype=float)
-        tip = arm.forward_kinematics(q)
-        goal = np.array(scenario.goals[-1].tip)
-        values['final_error'] = (float(np.hypot(*(tip - goal))) if np.isfinite(tip).all()
-                                 else None)
-    if seg is not None:
-        values['line_deviation'] = seg.values.get('deviation_max')
-        values['settling_time'] = seg.values.get('settling_time_overall')
-        notes['settling_time'] = 'never settles'
-    run = report.run
-    peak = run.get('torque_peak')
-    values['peak_torque'] = [float(v) for v in peak] if peak else None
-    sat = run.get('saturated_fraction')
-    values['saturation'] = max(float(v) for v in sat) if sat else None
-    pushes = report.pushes or []
-    if pushes:
-        dev = [p.get('peak_deviation') for p in pushes]
-        rec = [p.get('recovery_time') for p in pushes]
-        values['push_deviation'] = None if None in dev else max(dev)
-        values['push_recovery'] = None if None in rec else max(rec)
-        notes['push_recovery'] = 'never back'
+    Report` of its bag): each metric's :mod:`arm_bag.metrics` source by name
+    (:func:`measured`), and ``final_tip_error``, the distance [m] of the tip at the last
+    sample (``arm`` gives it by forward kinematics) from the last goal."""
     out = []
     for name, threshold in scenario.thresholds.items():
-        v = values.get(name)
+        metric = METRICS[name]
+        found = True
+        v: Any
+        if metric.source is None:  # final_tip_error
+            v = _final_tip_error(report, scenario, arm)
+        else:
+            v, found = measured(report, metric)
         if v is None:
             out.append(MetricResult(name, None, threshold, False,
-                                    notes.get(name, 'not measured')))
+                                    metric.undefined if found else 'not measured'))
             continue
         if isinstance(threshold, list):
             ok = all(math.isfinite(a) and a <= b for a, b in zip(v, threshold))
@@ -122,3 +126,14 @@ def grade(report, scenario: Scenario, arm) -> list[MetricResult]:
             ok = math.isfinite(v) and v <= threshold
         out.append(MetricResult(name, v, threshold, ok))
     return out
+
+
+def _final_tip_error(report, scenario: Scenario, arm) -> float | None:
+    """Distance [m] of the tip at the last sample of the last segment from the last goal;
+    None without a sample or with a non-finite tip."""
+    seg = report.segments[-1] if report.segments else None
+    if seg is None or not len(seg.series.get('q', ())):
+        return None
+    tip = arm.forward_kinematics(np.asarray(seg.series['q'][-1], dtype=float))
+    goal = np.array(scenario.goals[-1].tip)
+    return float(np.hypot(*(tip - goal))) if np.isfinite(tip).all() else None

@@ -27,7 +27,14 @@ class GradedMetric:
     """A metric a threshold can be set on: ``name``, its SI ``unit``, how it is shown
     (``scale`` x value in ``shown_unit``), per joint or not, which scenarios have it
     (``when``: ``all``, ``regulation``, ``straight_line`` (the last goal's mode) or
-    ``push``) and its meaning. A metric passes when its value <= the threshold."""
+    ``push``) and its meaning. A metric passes when its value <= the threshold.
+
+    ``source`` names the :mod:`arm_bag.metrics` metric it grades (``arm-sim analyze``'s
+    figure of the scenario's bag), taken from ``scope``: ``segment`` (the last segment),
+    ``run`` (the whole run; a per-joint source graded as one value takes the largest
+    joint) or ``push`` (the largest over the pushes). None: the check's own figure
+    (``final_tip_error``, which needs the goal). ``undefined`` is what an undefined value
+    of a measured source is shown as (it fails)."""
 
     name: str
     unit: str
@@ -36,28 +43,59 @@ class GradedMetric:
     per_joint: bool
     when: str
     meaning: str
+    source: str | None = None
+    scope: str | None = None
+    undefined: str = 'not measured'
 
 
 METRICS: dict[str, GradedMetric] = {m.name: m for m in (
-    GradedMetric('final_error', 'm', 'mm', 1e3, False, 'all',
+    GradedMetric('final_tip_error', 'm', 'mm', 1e3, False, 'all',
                  'distance of the tip from the last goal at the end of the scenario (the '
-                 'true state when the sensors are noisy)'),
+                 "true state when the sensors are noisy); not analyze's per-joint "
+                 'final_error [rad]'),
     GradedMetric('line_deviation', 'm', 'mm', 1e3, False, 'straight_line',
                  "largest distance of the tip from the last goal's commanded segment "
-                 '(arm-sim analyze deviation_max)'),
+                 '(arm-sim analyze deviation_max)', source='deviation_max', scope='segment'),
     GradedMetric('settling_time', 's', 's', 1.0, False, 'regulation',
                  "from the last goal's start until every joint stays within 2% of its step "
-                 '(arm-sim analyze settling_time_overall; never settling fails)'),
+                 '(arm-sim analyze settling_time_overall; never settling fails)',
+                 source='settling_time_overall', scope='segment', undefined='never settles'),
     GradedMetric('peak_torque', 'N m', 'N m', 1.0, True, 'all',
-                 'largest |applied torque| per joint over the scenario'),
+                 'largest |applied torque| per joint over the scenario', source='torque_peak',
+                 scope='run'),
     GradedMetric('saturation', 'fraction', '%', 100.0, False, 'all',
-                 'largest fraction of the control periods a joint spent at its effort limit'),
+                 'largest fraction of the control periods a joint spent at its effort limit',
+                 source='saturated_fraction', scope='run'),
     GradedMetric('push_deviation', 'm', 'mm', 1e3, False, 'push',
-                 'largest distance of the tip from where it should be after a push'),
+                 'largest distance of the tip from where it should be after a push',
+                 source='peak_deviation', scope='push'),
     GradedMetric('push_recovery', 's', 's', 1.0, False, 'push',
                  'time from a push until the tip is back within max(1 mm, 5% of its peak '
-                 'deviation) and stays (never coming back fails)'),
+                 'deviation) and stays (never coming back fails)', source='recovery_time',
+                 scope='push', undefined='never back'),
 )}
+#: Old metric names a suite file may still use: old -> new (read with a one-line note).
+RENAMED = {'final_error': 'final_tip_error'}
+
+
+def graded_metrics_markdown() -> str:
+    """The docs' table of :data:`METRICS` (docs/check.md holds it verbatim; a test checks)."""
+    when = {'all': 'all', 'regulation': 'last goal a regulation',
+            'straight_line': 'last goal a straight line', 'push': 'with pushes'}
+    scope = {'segment': 'of the last segment', 'run': 'of the run',
+             'push': 'of each push, the largest'}
+    rows = ['| metric | unit | for | `arm-sim analyze` metric | meaning |',
+            '|---|---|---|---|---|']
+    for m in METRICS.values():
+        unit = f'{m.unit}, per joint (one value: each)' if m.per_joint else m.unit
+        source = '-'
+        if m.source and m.scope:
+            largest = ', largest joint' if m.scope == 'run' and not m.per_joint else ''
+            source = f'`{m.source}` {scope[m.scope]}{largest}'
+        meaning = m.meaning.replace('|', '\\|')
+        rows.append(f'| `{m.name}` | {unit} | {when[m.when]} | {source} | {meaning} |')
+    return '\n'.join(rows) + '\n'
+
 
 MODES = ('regulation', 'straight_line')
 #: Simulator parameters a scenario may set (sensors and actuators: read-only parameters,
@@ -112,9 +150,13 @@ class Scenario:
 
 @dataclass(frozen=True)
 class Suite:
+    """A suite: its name, the file it came from, its scenarios, and ``notes``: one line
+    each for what the file should change (an old metric name, :data:`RENAMED`)."""
+
     name: str
     path: str
     scenarios: tuple[Scenario, ...]
+    notes: tuple[str, ...] = ()
 
     def select(self, names: list[str]) -> Suite:
         """The suite with only the scenarios ``names`` (SuiteFileError naming an unknown)."""
@@ -123,7 +165,8 @@ class Suite:
             if n not in known:
                 raise SuiteFileError(f'{self.path}: no scenario {n!r} (it has: '
                                      f"{', '.join(known)})")
-        return Suite(self.name, self.path, tuple(s for s in self.scenarios if s.name in names))
+        return Suite(self.name, self.path, tuple(s for s in self.scenarios if s.name in names),
+                     self.notes)
 
 
 def default_suite_path() -> Path:
@@ -164,7 +207,9 @@ def parse_suite(data: object, source: str = '<suite>') -> Suite:
             raise SuiteFileError(f'{source}: defaults: unknown key {key!r} (one of '
                                  f"{', '.join([*DEFAULTS, 'thresholds'])})")
         base[key] = _positive(value, f'{source}: defaults.{key}', zero=key == 'start_hold')
-    base_thresholds = _thresholds(defaults.get('thresholds') or {}, f'{source}: defaults')
+    notes: list[str] = []
+    base_thresholds = _thresholds(defaults.get('thresholds') or {}, f'{source}: defaults',
+                                  notes)
     items = data.get('scenarios')
     if not isinstance(items, list) or not items:
         raise SuiteFileError(f'{source}: scenarios must be a non-empty list, got {items!r:.60}')
@@ -173,19 +218,21 @@ def parse_suite(data: object, source: str = '<suite>') -> Suite:
         label = f'{source}: scenarios[{k}]'
         if isinstance(item, dict) and isinstance(item.get('name'), str):
             label += f" ({item['name']})"
-        scenarios.append(_scenario(item, label, base, base_thresholds))
+        scenarios.append(_scenario(item, label, base, base_thresholds, notes))
     names = [s.name for s in scenarios]
     dup = next((n for n in names if names.count(n) > 1), None)
     if dup:
         raise SuiteFileError(f'{source}: two scenarios are named {dup!r}')
-    return Suite(str(data.get('name') or Path(source).stem), source, tuple(scenarios))
+    return Suite(str(data.get('name') or Path(source).stem), source, tuple(scenarios),
+                 tuple(notes))
 
 
 SCENARIO_KEYS = ('name', 'description', 'start', 'start_tip', 'goals', 'thresholds',
                  'settle', 'budget', 'start_hold', 'simulator', 'disturbances')
 
 
-def _scenario(item: object, label: str, base: dict, base_thresholds: dict) -> Scenario:
+def _scenario(item: object, label: str, base: dict, base_thresholds: dict,
+              notes: list[str]) -> Scenario:
     if not isinstance(item, dict):
         raise SuiteFileError(f'{label}: a scenario is a mapping, got {item!r:.60}')
     unknown = [k for k in item if k not in SCENARIO_KEYS]
@@ -215,13 +262,13 @@ def _scenario(item: object, label: str, base: dict, base_thresholds: dict) -> Sc
     disturbances = item.get('disturbances')
     if disturbances is not None:
         disturbances = _disturbances(disturbances, label)
-    thresholds = {**base_thresholds, **_thresholds(item.get('thresholds') or {}, label)}
+    thresholds = {**base_thresholds, **_thresholds(item.get('thresholds') or {}, label, notes)}
     scenario = Scenario(name=name, description=str(item.get('description') or ''),
                         goals=goals, thresholds={}, start=start, start_tip=start_tip,
                         simulator=dict(simulator), disturbances=disturbances, **values)
     # A suite-wide default that does not apply to this scenario is dropped; one the
     # scenario sets itself must apply.
-    own = item.get('thresholds') or {}
+    own = {RENAMED.get(k, k): v for k, v in (item.get('thresholds') or {}).items()}
     for metric in list(thresholds):
         if not scenario.applies(metric):
             if metric in own:
@@ -274,13 +321,23 @@ def _goals(items: object, label: str, start_hold: float) -> tuple[Goal, ...]:
     return tuple(goals)
 
 
-def _thresholds(items: object, label: str) -> dict[str, Any]:
+def _thresholds(items: object, label: str, notes: list[str]) -> dict[str, Any]:
+    """The thresholds by metric name; an old name (:data:`RENAMED`) is read as the new one,
+    with a line in ``notes``."""
     if not isinstance(items, dict):
         raise SuiteFileError(f'{label}: thresholds must be a mapping metric: value, got '
                              f'{items!r:.60}')
     out: dict[str, Any] = {}
     for metric, value in items.items():
         where = f'{label}: thresholds.{metric}'
+        if metric in RENAMED:
+            new = RENAMED[metric]
+            if new in items:
+                raise SuiteFileError(f'{where}: the old name of {new}, which is given too: '
+                                     'give one')
+            notes.append(f'{where}: {metric} is deprecated, now {new} (read as it); '
+                         'rename it')
+            metric = new
         if metric not in METRICS:
             raise SuiteFileError(f'{where}: unknown metric (one of {", ".join(METRICS)})')
         m = METRICS[metric]

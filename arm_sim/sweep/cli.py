@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from arm_common.exits import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
 from arm_sim.sweep.output import (
     OutputFile,
     default_plot,
@@ -41,9 +42,6 @@ from arm_sim.sweep.spec import (
     resolve_spec,
     shipped_specs,
 )
-
-EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 1, 2
-EXIT_INTERRUPTED = 130   # Ctrl-C (SIGINT) or SIGTERM: the finished rows are written
 
 
 def _settings_help() -> str:

@@ -28,7 +28,12 @@ from arm_common.params import ParamSpec, resolve
 from arm_common.yamlfile import YamlFileError, read_yaml
 from arm_control.laws import BATCH_LAWS, Gains
 from arm_control.model_params import CONTROL_MODEL_PARAMS, MODEL_KEYS, controller_model
-from arm_dynamics.friction import JointFriction
+from arm_dynamics.friction import (
+    STATIC_FRICTION_RULE,
+    JointFriction,
+    static_friction_problem,
+    static_friction_used,
+)
 from arm_dynamics.limits import DEFAULT_EFFORT
 from arm_dynamics.models import joint_count
 from arm_dynamics.robot import ROBOT_PARAMS
@@ -144,7 +149,7 @@ SETTINGS: dict[str, ParamSpec] = {p.name: p for p in (
               'each joint, link side (plant only; stick/slip exact)', 'N m', minimum=0.0,
               maximum=1e4, length=2),
     ParamSpec('static_friction', 'doubles', (0.0, 0.0), 'break-away friction of each joint: '
-              '0 = its coulomb_friction, else >= it', 'N m', minimum=0.0, maximum=1e4,
+              + STATIC_FRICTION_RULE, 'N m', minimum=0.0, maximum=1e4,
               length=2),
     ParamSpec('position_noise', 'doubles', (0.0, 0.0), 'standard deviation of the Gaussian '
               'noise on each measured joint position', 'rad', minimum=0.0, maximum=10.0,
@@ -378,12 +383,9 @@ class Scenario:
     def __post_init__(self) -> None:
         for f in fields(self):
             object.__setattr__(self, f.name, check_setting(f.name, getattr(self, f.name)))
-        for j, (s, c) in enumerate(zip(self.static_friction, self.coulomb_friction)):
-            if 0.0 < s < c:
-                raise ValueError(
-                    f'static_friction[{j}] = {s:g} N m is below coulomb_friction[{j}] = '
-                    f'{c:g} N m: the break-away torque is at least the sliding one (0 = '
-                    'equal to it)')
+        problem = static_friction_problem(self.static_friction, self.coulomb_friction)
+        if problem:
+            raise ValueError(problem)
         reason = whole_counts_reason(self.encoder_resolution)
         if reason:
             raise ValueError(reason)
@@ -460,8 +462,7 @@ class Scenario:
         """The plant's joint friction (a ``static_friction`` of 0: the joint's
         ``coulomb_friction``), as the simulator node builds it."""
         c = self.coulomb_friction
-        s = tuple(x if x > 0.0 else y for x, y in zip(self.static_friction, c))
-        return _friction(c, s)
+        return _friction(c, static_friction_used(self.static_friction, c))
 
     def sensor_settings(self) -> dict[str, Any]:
         """The keywords of :class:`~arm_dynamics.sensors.SensorModel` (``n`` apart)."""
@@ -496,7 +497,7 @@ def robot_with_motors(gear_ratios: tuple[float, float], motor_inertias: tuple[fl
 
 
 @functools.lru_cache(maxsize=256)
-def _friction(coulomb: tuple[float, float], static: tuple[float, float]) -> JointFriction:
+def _friction(coulomb: tuple[float, ...], static: tuple[float, ...]) -> JointFriction:
     return JointFriction(coulomb=np.array(coulomb), static=np.array(static))
 
 
