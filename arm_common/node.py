@@ -5,10 +5,13 @@ Only node modules import this; the maths stays in the ROS-free packages.
 
 from __future__ import annotations
 
+import inspect
 import math
 import os
 import signal
 import sys
+import traceback
+import weakref
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
@@ -32,7 +35,10 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from rclpy.subscription import Subscription
+from rclpy.time_source import TimeSource
 
+from arm_common.exits import EXIT_OK, EXIT_USAGE
 from arm_common.params import (
     ParamSpec,
     command_line_parameters,
@@ -324,6 +330,7 @@ class Diagnostics:
         self.sim_time = sim_time
         self.wall = Clock(clock_type=ClockType.SYSTEM_TIME)
         node.create_timer(period, self.publish, clock=steady_clock())
+        _DIAGNOSTICS[node] = self  # where guard_messages reports a dropped message
 
     @property
     def counts(self) -> dict[str, int]:
@@ -335,19 +342,23 @@ class Diagnostics:
         self.level, self.message = level, message
         self.values.update(values)
 
-    def problem(self, kind: str, reason: str, level: str = 'WARN', **values: Any) -> None:
+    def problem(self, kind: str, reason: str, level: str = 'WARN', *, log: bool = True,
+                **values: Any) -> None:
         """Report rejected input or a fault now: log + /diagnostics (task ``kind``), at most
-        once a period per ``kind``; every occurrence is counted."""
+        once a period per ``kind``; every occurrence is counted. ``log=False``: on
+        /diagnostics only (the caller logs a summary of its own)."""
         task = self._occurred(kind, level, reason, values)
         if self.throttle.ready(kind):
             held = self.throttle.take_suppressed(kind)
             more = f' ({held} more since last report)' if held else ''
-            log = self.node.get_logger()
+            logger = self.node.get_logger()
             # Two call sites: rclpy refuses a severity change at one call site.
-            if level == 'ERROR':
-                log.error(f'{reason}{more}')
+            if not log:
+                pass
+            elif level == 'ERROR':
+                logger.error(f'{reason}{more}')
             else:
-                log.warning(f'{reason}{more}')
+                logger.warning(f'{reason}{more}')
             self._send([self._task_status(kind, task, event=True)])
 
     def event(self, kind: str, message: str, **values: Any) -> None:
@@ -399,6 +410,119 @@ class Diagnostics:
         msg = DiagnosticArray(status=statuses)
         msg.header.stamp = self.wall.now().to_msg()
         self.pub.publish(msg)
+
+
+#: Each node's :class:`Diagnostics`, where :func:`guard_messages` reports what it drops.
+_DIAGNOSTICS: weakref.WeakKeyDictionary[Node, Diagnostics] = weakref.WeakKeyDictionary()
+_GUARDED: weakref.WeakSet[Node] = weakref.WeakSet()
+
+#: /diagnostics kinds of :func:`guard_messages`: a clock message that is no valid time, and
+#: a message whose callback raised (the planner's and live view's name for the latter).
+REJECTED_CLOCK = 'rejected_clock'
+INTERNAL_ERROR = 'internal_error'
+
+NS_PER_S = 1_000_000_000
+
+
+def clock_refusal(sec: int, nanosec: int) -> str | None:
+    """Why the time of a rosgraph_msgs/Clock message (``sec`` [s], ``nanosec`` [ns]) is no
+    valid simulated time, or None: ``sec`` negative (simulated time starts at 0; rclpy's
+    TimeSource raises ValueError on it) or ``nanosec`` outside [0, 1e9)
+    (builtin_interfaces/Time: more is a second and belongs in ``sec``; rclpy would carry it
+    over silently)."""
+    if sec < 0:
+        return f'clock is negative (sec = {sec}): simulated time starts at 0'
+    if not 0 <= nanosec < NS_PER_S:
+        return f'clock.nanosec = {nanosec} is outside [0, 1e9)'
+    return None
+
+
+def guard_messages(node: Node) -> None:
+    """No single message stops ``node``: every subscription callback of ``node`` (those it
+    has, and those it creates later, rclpy's own ``clock`` subscription included when
+    ``use_sim_time`` is switched on at run time) is wrapped so that
+
+    * a ``clock`` message for the node's time source (``use_sim_time``) that
+      :func:`clock_refusal` refuses, or that rclpy's TimeSource raises on, is dropped: the
+      node keeps its last good time (``kept_time`` [s]) and goes on; reported (WARN,
+      throttled) in the log and on /diagnostics as ``rejected_clock`` with ``sec`` and
+      ``nanosec``;
+    * a message whose callback raises is dropped and reported (ERROR, throttled) as
+      ``internal_error`` with the topic, the exception and where it was raised; the node
+      goes on. (Without this a callback's exception leaves ``spin_once`` and ends the node
+      with exit code 1.)
+
+    :func:`run_node` guards every node its factory makes; reports go to the node's
+    :class:`Diagnostics` (to its log alone if it has none)."""
+    if node in _GUARDED:
+        return
+    _GUARDED.add(node)
+    for sub in list(node.subscriptions):
+        _guard(node, sub)
+    create = node.create_subscription
+
+    def create_guarded(*args: Any, **kwargs: Any) -> Subscription:
+        sub = create(*args, **kwargs)
+        _guard(node, sub)
+        return sub
+
+    # An instance attribute: rclpy's TimeSource subscribes through node.create_subscription.
+    node.create_subscription = create_guarded  # type: ignore[method-assign]
+
+
+def _report(node: Node, kind: str, reason: str, level: str, **values: Any) -> None:
+    diag = _DIAGNOSTICS.get(node)
+    if diag is not None:
+        diag.problem(kind, reason, level, **values)
+    elif level == 'ERROR':  # two call sites: rclpy refuses a severity change at one
+        node.get_logger().error(reason, throttle_duration_sec=1.0)
+    else:
+        node.get_logger().warning(reason, throttle_duration_sec=1.0)
+
+
+def _guard(node: Node, sub: Subscription) -> None:
+    """Wrap ``sub``'s callback as :func:`guard_messages` says."""
+    callback = sub.callback
+    topic = sub.topic_name
+    # private: the TimeSource that rclpy.node.Node makes and subscribes to clock with
+    time_source = getattr(node, '_time_source', None)
+    is_clock = (getattr(callback, '__self__', None) is time_source is not None
+                and getattr(callback, '__func__', None) is TimeSource.clock_callback)
+
+    def take_clock(msg: Any) -> None:
+        sec, nanosec = msg.clock.sec, msg.clock.nanosec
+        reason = clock_refusal(sec, nanosec)
+        if reason is None:
+            try:
+                callback(msg)
+                return
+            except (ValueError, OverflowError, TypeError) as exc:  # TimeSource refused it
+                reason = f'rclpy refused it: {exc}'
+        kept = node.get_clock().now().nanoseconds / NS_PER_S
+        _report(node, REJECTED_CLOCK, f'{topic} refused: {reason}; the node keeps its time '
+                f'at {kept:.9f} s', 'WARN', topic=topic, sec=sec, nanosec=nanosec,
+                kept_time=f'{kept:.9f}')
+
+    def handle(*args: Any) -> None:
+        try:
+            if is_clock:
+                take_clock(args[0])
+            else:
+                callback(*args)
+        except ExternalShutdownException:
+            raise
+        except Exception as exc:  # no message may stop the node
+            frame = traceback.extract_tb(exc.__traceback__)[-1]
+            where = f'{os.path.basename(frame.filename)}:{frame.lineno} in {frame.name}'
+            _report(node, INTERNAL_ERROR, f'{topic}: message dropped, handling it failed: '
+                    f'{exc!r} (at {where}); the node goes on', 'ERROR', topic=topic,
+                    error=repr(exc), where=where)
+
+    try:  # the callback's arity, as rclpy tells the two kinds apart
+        inspect.signature(callback).bind(object())
+        sub.callback = lambda msg: handle(msg)
+    except TypeError:
+        sub.callback = lambda msg, info: handle(msg, info)
 
 
 def print_help(prog: str, summary: str, specs: Iterable[ParamSpec]) -> None:
@@ -492,7 +616,9 @@ def run_node(factory: Callable[[], Node | list[Node]], *, prog: str, summary: st
     ``executor_type`` overrides the executor (the recorder keeps SingleThreadedExecutor:
     its raw subscriptions and message-lost events misbehave under EventsExecutor).
     Refused start-up parameters print one line and return 2. ``factory`` may return several
-    nodes: they are composed in this one process and spun by one executor.
+    nodes: they are composed in this one process and spun by one executor. Every node is
+    guarded (:func:`guard_messages`): a bad ``clock`` or a message its callback fails on is
+    dropped and reported, never the end of the node.
     """
     argv = sys.argv[1:] if args is None else args
     own = argv[:argv.index('--ros-args')] if '--ros-args' in argv else argv
@@ -501,7 +627,7 @@ def run_node(factory: Callable[[], Node | list[Node]], *, prog: str, summary: st
             print_help(prog, summary, specs)
         except BrokenPipeError:  # e.g. piped into head
             sys.stdout = None
-        return 0
+        return EXIT_OK
     stop = []
     _user_args[:] = argv
     try:
@@ -510,7 +636,7 @@ def run_node(factory: Callable[[], Node | list[Node]], *, prog: str, summary: st
     except (ConfigError, RCLError) as exc:
         reason = ' '.join(str(exc).split()).split(', at /')[0]  # one line, no C sources
         print(f'{prog}: refused parameters: {reason}', file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.append(True))
     watch_parent()
@@ -519,17 +645,18 @@ def run_node(factory: Callable[[], Node | list[Node]], *, prog: str, summary: st
         return not stop and rclpy.ok()
 
     nodes: list[Node] = []
-    code = 0
+    code = EXIT_OK
     try:
         made = factory()
         nodes = made if isinstance(made, list) else [made]
         executor = (executor_type or EXECUTOR)()
         for node in nodes:
+            guard_messages(node)  # no single message stops it
             executor.add_node(node)
         (spin or spin_until_stopped)(executor, nodes[0], running)
     except ConfigError as exc:
         print(f'{prog}: refused parameters: {exc}', file=sys.stderr)
-        code = 2
+        code = EXIT_USAGE
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
