@@ -33,6 +33,7 @@ from arm_common.node import (
     steady_clock,
 )
 from arm_common.params import ParamSpec
+from arm_common.throttle import GrowingIntervals
 from arm_dynamics.disturbance import DisturbanceError, Disturbances, Event
 from arm_dynamics.friction import JointFriction
 from arm_dynamics.limits import JointLimits
@@ -322,6 +323,7 @@ class SimulatorNode(Node):
         self.held_since: int | None = None  # wall ns a client's hold began
         self.holds = 0
         self.wait_reported: float | None = None  # wall s waited at the last wait report
+        self.wait_log = GrowingIntervals()  # the log lines of real_time_waits
         self.window: Window | None = None
         self.windows = 0  # reporting windows closed (each ~1 s of wall time)
         self.rt_timer: Timer | None = None
@@ -588,15 +590,40 @@ class SimulatorNode(Node):
                     'the machine)',
                     late_fraction=f'{win.late_fraction:.4f}',
                     achieved_control_rate=f'{win.answered_rate:.1f}')
-            if win.waits and self.mode == 'real_time':
-                self.diag.problem(
-                    'real_time_waits', f'simulated time waited for the controller {win.waits}'
-                    f' time(s) in the last {win.wall_s:.1f} s (wall), {win.waited_s:.3f} s in '
-                    f'all: achieved {win.real_time_factor:.2f}x of '
-                    f'{k.real_time_factor:g}x real time (the results are unaffected)',
-                    waits=win.waits, waited_wall=f'{win.waited_s:.3f}',
-                    achieved_real_time_factor=f'{win.real_time_factor:.3f}')
+            if self.mode == 'real_time':
+                self._report_waits(win, now)
             self._summarise()
+
+    def _report_waits(self, win: Window, now: int) -> None:
+        """``real_time_waits``: on /diagnostics (WARN) each window with waits, as every
+        problem; in the log the first wait once, then a summary with the totals at growing
+        intervals (:class:`arm_common.throttle.GrowingIntervals`: 5 s, then every 30 s), not a
+        line a second under load."""
+        k, kind = self.keeper, 'real_time_waits'
+        line = self.wait_log.note(now * 1e-9, win.waits, win.waited_s)
+        if win.waits:  # on /diagnostics each window; the log gets the summaries below
+            self.diag.problem(
+                kind, f'simulated time waited for the controller {win.waits} time(s) '
+                f'in the last {win.wall_s:.1f} s (wall), {win.waited_s:.3f} s in all: achieved '
+                f'{win.real_time_factor:.2f}x of {k.real_time_factor:g}x real time (the '
+                'results are unaffected)', log=False, waits=win.waits,
+                waited_wall=f'{win.waited_s:.3f}',
+                achieved_real_time_factor=f'{win.real_time_factor:.3f}')
+        if line is None:
+            return
+        totals = (f'{k.waits} time(s), {k.waited_s:.3f} s (wall) in all since the start; '
+                  f'achieved {k.paced_real_time_factor:.2f}x of {k.real_time_factor:g}x real '
+                  'time (the results are unaffected)')
+        if line.first:
+            self.get_logger().warning(
+                f'simulated time waited for the controller {line.count} time(s) in the last '
+                f'{win.wall_s:.1f} s (wall), {line.amount:.3f} s: {totals}; further waits are '
+                f'summarised after {self.wait_log.intervals[0]:g} s, then every '
+                f'{self.wait_log.intervals[-1]:g} s (/diagnostics: {kind}, every second)')
+        else:
+            self.get_logger().warning(
+                f'simulated time waited for the controller {line.count} more time(s) in the '
+                f'last {line.span:.0f} s (wall), {line.amount:.3f} s: {totals}')
 
     def _summarise(self) -> None:
         core, k, win = self.core, self.keeper, self.window

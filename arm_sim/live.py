@@ -10,9 +10,11 @@ extra ``foxglove``, imported only when a bridge is made) and the computations it
   :func:`arm_bag.msgdefs.schema_text`. Messages are forwarded as the raw CDR bytes, never
   deserialised. A latched topic's latest message is sent again when a client subscribes.
 * **The robot**, as Foxglove's 3D panel draws it: the URDF (``/robot_description``,
-  ``std_msgs/msg/String``, latched) and the frames ``base_link -> link1 -> link2 -> tool0``
+  ``std_msgs/msg/String``, latched), the frames ``base_link -> link1 -> link2 -> tool0``
   from each joint state (:func:`arm_transforms`, the arm's own kinematics) as
-  ``foxglove.FrameTransforms`` on ``/tf``.
+  ``foxglove.FrameTransforms`` on ``/tf``, and ``/tf_static`` (``tf2_msgs/msg/TFMessage``,
+  latched, a ROS channel like the others) with the URDF's fixed joints (``link<n> ->
+  tool0``), as robot_state_publisher publishes them and foxglove_bridge relays them.
 * **Client publishing**: a client-advertised channel on a topic of
   :data:`CLIENT_CHANNELS` (``cdr`` or ``json``) is handed to the node, which publishes it
   into ROS: ``goal_pose`` (``geometry_msgs/msg/PoseStamped``; Foxglove's "Publish pose"
@@ -91,6 +93,9 @@ SUBPROTOCOL = 'foxglove.websocket.v1'
 BACKEND_HOST = '127.0.0.1'
 DESCRIPTION_TOPIC = 'robot_description'
 TF_TOPIC = 'tf'  # relative: /tf in the root namespace, as robot_state_publisher's
+#: The fixed joints' transforms, latched, as robot_state_publisher's (relative, like /tf).
+TF_STATIC_TOPIC = 'tf_static'
+TF_STATIC_TYPE = 'tf2_msgs/msg/TFMessage'
 GOAL_TOPIC = 'goal_pose'
 GOAL_TYPE = 'geometry_msgs/msg/PoseStamped'
 #: The simulator's live tip pushes (arm_dynamics.simulator_node: force x, y [N], base frame).

@@ -11,7 +11,14 @@ forwards each message's CDR bytes on its channel at its receive time on simulate
   parameters (:mod:`arm_dynamics.urdf`), replaced by what a ROS publisher of
   ``robot_description`` sends, if any;
 * ``/tf`` (``foxglove.FrameTransforms``): ``base_link -> link1 -> link2 -> tool0`` from
-  each joint state, stamped with its header stamp (:func:`arm_sim.live.arm_transforms`).
+  each joint state, stamped with its header stamp (:func:`arm_sim.live.arm_transforms`);
+* ``/tf_static`` (``tf2_msgs/msg/TFMessage``, latched: sent again to each client that
+  subscribes): what robot_state_publisher puts there for the URDF served on
+  ``/robot_description``, one transform per fixed joint (the suite's arms: ``link<n> ->
+  tool0``, ``(l_n, 0, 0)``, identity rotation), stamped 0 as the visualizer's
+  (:class:`arm_sim.tf.FrameTree`); sent again when a ROS publisher's ``robot_description``
+  changes them (one that is no URDF keeps the last ones: ``unreadable_robot_description``).
+  A URDF without fixed joints gives an empty TFMessage, so the channel is always there.
 
 Clients connect with either name of the protocol, ``foxglove.sdk.v1`` (Foxglove) or
 ``foxglove.websocket.v1`` (``@foxglove/ws-protocol``, Lichtblick, PlotJuggler): the
@@ -62,6 +69,7 @@ from collections.abc import Generator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from builtin_interfaces.msg import Time
 from rcl_interfaces.msg import Parameter, ParameterEvent, ParameterValue
 from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 from rclpy.executors import SingleThreadedExecutor
@@ -69,6 +77,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 
 from arm_bag.msgdefs import MessageDefinitionError
 from arm_bag.recorder_node import KNOWN_TOPICS, LATCHED, message_class
@@ -94,6 +103,8 @@ from arm_sim.live import (
     ROSOUT_TOPIC,
     ROSOUT_TYPE,
     SERVICE_TIMEOUT,
+    TF_STATIC_TOPIC,
+    TF_STATIC_TYPE,
     TF_TOPIC,
     Bridge,
     ClientChannel,
@@ -121,13 +132,17 @@ from arm_sim.live import (
     stamp_refusal,
     text_refusal,
 )
+from arm_sim.tf import FrameTree, Transform
+from arm_sim.visualizer_node import tf_message
 
 SUMMARY = '''
 Serves the suite's topics over the Foxglove WebSocket protocol (foxglove-sdk; subprotocol
 foxglove.sdk.v1 or foxglove.websocket.v1, other handshakes refused with the reason): each topic
 as a channel (cdr, ros2msg schema), raw CDR forwarded at its receive time on simulated time;
-/robot_description (the URDF from the robot parameters) and /tf (foxglove.FrameTransforms
-base_link -> link1 -> link2 -> tool0 from the joint states) for the 3D panel; a client's
+/robot_description (the URDF from the robot parameters), /tf (foxglove.FrameTransforms
+base_link -> link1 -> link2 -> tool0 from the joint states) and /tf_static
+(tf2_msgs/TFMessage, latched: the URDF's fixed joints, link<n> -> tool0, as
+robot_state_publisher publishes them) for the 3D panel; a client's
 goal_pose (Publish pose) and simulator/push (a WrenchStamped tip push, Publish panel) are
 published into ROS; /rosout, every node's parameters (/<node>.<parameter>, get and set),
 every ROS service (e.g. /simulator/reset) and the connection graph, as foxglove_bridge offers
@@ -278,6 +293,17 @@ class LiveNode(Node):
                 cls, name, functools.partial(self._on_message, topic=name), qos, raw=True))
         if self.description in self.bridge.channels:
             self.bridge.forward(self.description, cdr_string(urdf), 0)
+        # /tf_static: not ROS's (left out above, like tf) but the fixed joints of the URDF
+        # served on /robot_description, as robot_state_publisher would publish them.
+        self.tf_static = self.resolve_topic_name(TF_STATIC_TOPIC)
+        self.static: list[Transform] | None = None  # the transforms last sent on it
+        try:
+            self.bridge.add_ros_channel(self.tf_static, TF_STATIC_TYPE, latched=True)
+        except MessageDefinitionError as exc:
+            self.get_logger().warn(f'not serving {self.tf_static}: type {TF_STATIC_TYPE} '
+                                   f'unavailable: {exc}')
+        else:
+            self._send_static(FrameTree(urdf).static_transforms())
         for o in self.outlets.values():
             o.publisher = self.create_publisher(o.cls, o.channel.topic, 10)
         # Parameters, services and the connection graph (requests answered from poll()).
@@ -311,9 +337,33 @@ class LiveNode(Node):
             self.forwarded += 1
             if tfs:
                 self.bridge.send_transforms(tfs[0], tfs[1], self.tf_topic)
+            if topic == self.description and self.tf_static in self.bridge.channels:
+                self._description_static(data)
         except Exception as exc:  # never die on a message (the SDK's own errors included)
             self.diag.problem('internal_error', f'{topic}: not forwarded, handling it failed: '
                               f'{exc!r}', 'ERROR', topic=topic)
+
+    def _description_static(self, data: bytes) -> None:
+        """/tf_static for a ROS publisher's ``robot_description`` (raw CDR): its fixed
+        joints, sent if they differ from the last ones; one that is no URDF keeps them
+        (reported)."""
+        try:
+            static = FrameTree(deserialize_message(data, String).data).static_transforms()
+        except Exception as exc:  # rclpy raises a bare error on a malformed message
+            self.diag.problem('unreadable_robot_description', f'{self.description}: no fixed '
+                              f'joints read from it ({exc}); {self.tf_static} keeps the last '
+                              'ones')
+            return
+        self._send_static(static)
+
+    def _send_static(self, static: list[Transform]) -> None:
+        """Send ``static`` (a URDF's fixed joints) on /tf_static (latched), stamped 0,
+        unless they are the ones sent last."""
+        if static == self.static:
+            return
+        self.static = static
+        self.bridge.forward(self.tf_static, serialize_message(tf_message(static, Time())),
+                            self.sim_ns)
 
     def _on_clock(self, data: bytes) -> bool:
         """Take the simulated time from a ``clock`` message; False (reported) if refused."""

@@ -44,7 +44,7 @@ from launch.launch_context import LaunchContext
 from launch.launch_description import LaunchDescription
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
-from launch_ros.parameter_descriptions import ParameterValue
+from launch_ros.parameter_descriptions import Parameter, ParameterValue
 
 from arm_common.process import PARENT_ENV  # nodes die with the process that started them
 from arm_dynamics.timing import TIMING_MODES  # the one list of modes
@@ -88,8 +88,12 @@ def _arguments() -> list[DeclareLaunchArgument]:
                         'node settings).'),
         DeclareLaunchArgument(
             'use_sim_time', default_value='true', choices=['true', 'false'],
-            description='Run controller, planner and recorder on the simulator\'s clock '
-                        'topic. The simulator itself always runs on the wall clock.'),
+            description='Run controller, planner, recorder, visualizer and, when started, '
+                        'robot_state_publisher and rviz2 on simulated time: the clock topic '
+                        'the simulator publishes in namespace (false: the wall clock). The '
+                        'simulator is the clock source and always runs on the wall clock; '
+                        'with composed:=true the controller in its process follows '
+                        'params_file instead (config/arm.yaml: simulated time).'),
         DeclareLaunchArgument(
             'timing_mode', default_value='', choices=['', *TIMING_MODES],
             description='Simulator timing mode: real_time (wall-clock speed, the default in '
@@ -130,26 +134,26 @@ def _loop(context: LaunchContext) -> list[Node]:
     ``timing_mode`` overriding params_file only when non-empty.
 
     A non-empty ``timing_mode`` reaches the node ``simulator`` as a node-scoped command-line
-    rule (:func:`timing_mode_arguments`), in either process: a ``parameters`` dict would not
+    rule (:func:`timing_mode_parameters`), in either process: a ``parameters`` dict would not
     do for ``composed``, whose Node has no single name, so launch_ros writes the dict as a
     ``/**`` section, which a params file's ``/**/simulator`` section (config/arm.yaml's sets
-    ``timing_mode``) beats.
+    ``timing_mode``) beats. The rule is an entry of ``parameters`` (a launch_ros
+    ``Parameter``), which launch_ros writes as ``-p`` after the params files in the one
+    ``--ros-args`` section it makes; ``ros_arguments`` would open a second one.
 
     The simulator is the clock source and must run on the wall clock, so its
     ``use_sim_time`` is pinned to false even if params_file sets it for all nodes (composed:
     params_file's per-node sections decide, as config/arm.yaml does).
     """
-    modes = timing_mode_arguments(timing_mode.perform(context))
+    modes = timing_mode_parameters(timing_mode.perform(context))
     if composed.perform(context) == 'true':
         return [Node(package=PACKAGE, executable='composed', namespace=namespace,
-                     parameters=[params_file, *_gate(context, 'simulator')],
-                     ros_arguments=modes, remappings=CLOCK_REMAP, output='screen',
-                     additional_env=PARENT)]
+                     parameters=[params_file, *_gate(context, 'simulator'), *modes],
+                     remappings=CLOCK_REMAP, output='screen', additional_env=PARENT)]
     return [Node(package=PACKAGE, executable='simulator', name='simulator',
                  namespace=namespace, parameters=[params_file, {'use_sim_time': False},
-                                                  *_gate(context, 'simulator')],
-                 ros_arguments=modes, remappings=CLOCK_REMAP, output='screen',
-                 additional_env=PARENT),
+                                                  *_gate(context, 'simulator'), *modes],
+                 remappings=CLOCK_REMAP, output='screen', additional_env=PARENT),
             _sim_time_node('controller', parameters=_gate(context, 'controller'))]
 
 
@@ -162,16 +166,19 @@ def _gate(context: LaunchContext, node: str) -> list[dict]:
     return [values] if values else []
 
 
-def timing_mode_arguments(mode: str) -> list[str]:
-    """The ROS arguments that set the node ``simulator``'s ``timing_mode`` to ``mode``, or
-    none for an empty ``mode`` (params_file decides).
+def timing_mode_parameters(mode: str) -> list[Parameter]:
+    """The rule that sets the node ``simulator``'s ``timing_mode`` to ``mode``, or none for
+    an empty ``mode`` (params_file decides).
 
-    ``-p simulator:timing_mode:=<mode>`` applies to the node named ``simulator`` in any
-    namespace, and rcl's ``-p`` rules win over every params file, whatever their order and
-    however specific their sections; it leaves the controller of the composed process alone.
+    launch_ros (Jazzy) gives a ``Parameter`` entry of ``parameters`` to the node as
+    ``-p simulator:timing_mode:=<mode>`` after the params files, in its one ``--ros-args``
+    section. That rule applies to the node named ``simulator`` in any namespace, leaves the
+    controller of the composed process alone and wins over every params file: rcl applies
+    the later of a file and a rule, and the suite's nodes apply ``-p`` rules last anyway
+    (:func:`arm_common.params.command_line_parameters`).
     """
     mode = mode.strip()
-    return ['-p', f'simulator:timing_mode:={mode}'] if mode else []
+    return [Parameter('simulator:timing_mode', mode)] if mode else []
 
 
 def _visualization(context: LaunchContext) -> list[Node]:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import ast
 import importlib.util
+import re
 import sys
 import types
 from pathlib import Path
@@ -62,8 +63,9 @@ def stand_ins() -> dict[str, types.ModuleType]:
                                                                 (Recorded,), {})},
         'launch.substitutions': {'LaunchConfiguration': LaunchConfiguration},
         'launch_ros.actions': {'Node': type('Node', (Recorded,), {})},
-        'launch_ros.parameter_descriptions': {'ParameterValue': type('ParameterValue',
-                                                                     (Recorded,), {})},
+        'launch_ros.parameter_descriptions': {
+            'ParameterValue': type('ParameterValue', (Recorded,), {}),
+            'Parameter': type('Parameter', (Recorded,), {})},
     }.items():
         mod = types.ModuleType(name)
         mod.__dict__.update(attrs)
@@ -157,6 +159,13 @@ def test_rviz_starts_with_the_shipped_config_and_the_robot_state_publisher(launc
     assert ('/tf', 'tf') in rviz.kwargs['remappings']
 
 
+def timing_rules(node) -> list[tuple[str, str]]:
+    """The launch_ros ``Parameter`` entries of the node's ``parameters`` (name, value):
+    launch_ros gives each to the node as a ``-p name:=value`` rule."""
+    return [(p.args[0], p.args[1]) for p in node.kwargs.get('parameters', [])
+            if type(p).__name__ == 'Parameter']
+
+
 def timing_in_dicts(node) -> list:
     """The ``timing_mode`` entries of the node's parameter dicts (launch_ros writes them as
     a params file that a params file's ``/**/simulator`` section may beat)."""
@@ -171,14 +180,17 @@ def test_timing_mode_reaches_the_simulator_as_a_node_scoped_rule(launch_module, 
     nodes = loop_nodes(launch_module, composed=composed, timing_mode=mode)
     sim = nodes[0]
     assert sim.kwargs['executable'] == ('composed' if composed == 'true' else 'simulator')
-    # '-p node:param:=value' beats every params file; a '/**' dict would lose to
-    # config/arm.yaml's '/**/simulator' section.
-    assert sim.kwargs['ros_arguments'] == ['-p', f'simulator:timing_mode:={mode.strip()}']
+    # '-p node:param:=value' (after the params files) beats every params file; a '/**'
+    # dict would lose to config/arm.yaml's '/**/simulator' section.
+    assert timing_rules(sim) == [('simulator:timing_mode', mode.strip())]
     assert sim.kwargs['parameters'][0] is launch_module.params_file
-    assert not timing_in_dicts(sim)
+    cmd = launch_ros_command(sim)
+    rule = cmd.index(f'simulator:timing_mode:={mode.strip()}\n...\n')
+    assert cmd[rule - 1] == '-p' and rule > cmd.index('--params-file'), cmd
+    assert not timing_in_dicts(sim) and not sim.kwargs.get('ros_arguments')
     for other in nodes[1:]:  # the controller of two processes
         assert other.kwargs['executable'] == 'controller'
-        assert not other.kwargs.get('ros_arguments') and not timing_in_dicts(other)
+        assert not timing_rules(other) and not timing_in_dicts(other)
     assert len(nodes) == (1 if composed == 'true' else 2)
 
 
@@ -186,8 +198,8 @@ def test_timing_mode_reaches_the_simulator_as_a_node_scoped_rule(launch_module, 
 @pytest.mark.parametrize('mode', ['', '  '])
 def test_empty_timing_mode_leaves_params_file_to_decide(launch_module, composed, mode):
     for node in loop_nodes(launch_module, composed=composed, timing_mode=mode):
-        assert not node.kwargs.get('ros_arguments'), 'no rule overrides params_file'
-        assert not timing_in_dicts(node)
+        assert not timing_rules(node), 'no rule overrides params_file'
+        assert not node.kwargs.get('ros_arguments') and not timing_in_dicts(node)
         assert node.kwargs['parameters'][0] is launch_module.params_file
 
 
@@ -269,3 +281,83 @@ def test_a_recorder_that_leaves_a_stream_out_is_not_waited_for(launch_module, tm
     nodes = arm_sim_nodes(launch_module, params_file=str(custom))
     gated = {n.kwargs['executable'] for n in nodes if gate_of(n) == ['recorder']}
     assert gated == {'simulator'}, 'the controller and visualizer would wait for nothing'
+
+
+def launch_ros_command(node) -> list[str]:
+    """The command line launch_ros (Jazzy, launch_ros/actions/node.py) runs for the
+    recorded Node, in its order: the executable, ``arguments``, ``--ros-args`` +
+    ``ros_arguments`` when given (even empty), then the ``--ros-args`` section it always
+    opens: the node's name and namespace, each entry of ``parameters`` (a params file or
+    a dict: ``--params-file``; a ``Parameter``: ``-p name:=<yaml.dump(value)>``), the
+    remappings. Substitutions are shown as their names (``<params_file>``)."""
+    import yaml
+
+    kw = node.kwargs
+
+    def text(v) -> str:
+        return f'<{v.args[0]}>' if isinstance(v, LaunchConfiguration) else str(v)
+
+    cmd = [kw['executable'], *(text(a) for a in kw.get('arguments') or [])]
+    if kw.get('ros_arguments') is not None:
+        cmd += ['--ros-args', *(text(a) for a in kw['ros_arguments'])]
+    cmd.append('--ros-args')
+    if kw.get('name') is not None:
+        cmd += ['-r', f"__node:={kw['name']}"]
+    if kw.get('namespace') is not None:
+        cmd += ['-r', f"__ns:={text(kw['namespace'])}"]
+    for entry in kw.get('parameters') or []:
+        if type(entry).__name__ == 'Parameter':
+            cmd += ['-p', f'{entry.args[0]}:={yaml.dump(entry.args[1])}']
+        else:
+            cmd += ['--params-file', text(entry) if not isinstance(entry, dict)
+                    else '<launch_params_file>']
+    for src, dst in kw.get('remappings') or []:
+        cmd += ['-r', f'{src}:={dst}']
+    return cmd
+
+
+def every_node(module, **given: str) -> list:
+    """Every Node the description starts for launch arguments ``given`` (all optional
+    nodes on: recorder, visualizer, robot_state_publisher and RViz)."""
+    context = {'composed': 'false', 'timing_mode': '', 'params_file': str(CONFIG),
+               'rviz': 'true', 'robot_state_publisher': 'true', 'visualizer': 'true',
+               'record': 'true', **given}
+    nodes = []
+    for action in module.generate_launch_description().args[0]:
+        if type(action).__name__ == 'OpaqueFunction':
+            nodes += action.kwargs['function'](context)
+        elif type(action).__name__ == 'Node':
+            nodes.append(action)
+    return nodes
+
+
+@pytest.mark.parametrize('composed', ['false', 'true'])
+@pytest.mark.parametrize('mode', ['', 'lockstep'])
+def test_every_node_gets_one_ros_args_section(launch_module, composed, mode):
+    """launch_ros opens a ``--ros-args`` section of its own for every Node; ``ros_arguments``
+    (even an empty list) opened a second one before it, so the simulator's command line
+    read ``simulator --ros-args --ros-args -r __node:=simulator ...``."""
+    nodes = every_node(launch_module, composed=composed, timing_mode=mode)
+    assert {n.kwargs['executable'] for n in nodes} >= {'planner', 'rviz2'}
+    for node in nodes:
+        cmd = launch_ros_command(node)
+        assert cmd.count('--ros-args') == 1, cmd
+
+
+def test_the_use_sim_time_argument_names_every_node_it_sets(launch_module):
+    """Every node given the ``use_sim_time`` launch argument is named in its description,
+    and so is the simulator, which is pinned to the wall clock."""
+    description = declared(launch_module)['use_sim_time']['description']
+    followers = set()
+    for node in every_node(launch_module):
+        for entry in node.kwargs.get('parameters') or []:
+            value = entry.get('use_sim_time') if isinstance(entry, dict) else None
+            if type(value).__name__ == 'ParameterValue' and (
+                    value.args[0] is launch_module.use_sim_time):
+                followers.add(node.kwargs['executable'])
+    assert followers == {'controller', 'planner', 'recorder', 'visualizer',
+                         'robot_state_publisher', 'rviz2'}
+    for name in sorted(followers) + ['simulator', 'composed']:
+        assert re.search(rf'\b{name}\b', description), (name, description)
+    (sim, _) = loop_nodes(launch_module)
+    assert {'use_sim_time': False} in sim.kwargs['parameters'], 'the clock source'

@@ -25,17 +25,22 @@ def file_mode() -> str:
 
 def launch_ros_arguments(node, params_file, tmp_path: Path) -> list[str]:
     """The ROS arguments launch_ros gives the recorded Node, in its order: ``ros_arguments``
-    first, then the node name, each entry of ``parameters`` as a params file (a dict as a
-    file keyed by the node's full name, or ``/**`` for a node left unnamed), remappings.
+    first (when given), then the node name, each entry of ``parameters`` as a params file (a
+    dict as a file keyed by the node's full name, or ``/**`` for a node left unnamed) or a
+    ``-p`` rule (a ``Parameter``), remappings.
     The root namespace, as the launch file's default."""
     kw = node.kwargs
     name = kw.get('name')
-    args = ['--ros-args', *(kw.get('ros_arguments') or []), '--ros-args']
+    args = (['--ros-args', *kw['ros_arguments']] if kw.get('ros_arguments') is not None
+            else []) + ['--ros-args']
     if name:
         args += ['-r', f'__node:={name}']
     for k, entry in enumerate(kw.get('parameters', [])):
         if entry is params_file:
             args += ['--params-file', str(CONFIG)]
+            continue
+        if type(entry).__name__ == 'Parameter':  # launch_ros: -p name:=<yaml.dump(value)>
+            args += ['-p', f'{entry.args[0]}:={yaml.dump(entry.args[1])}']
             continue
         assert isinstance(entry, dict) and all(
             isinstance(v, (bool, int, float, str)) or (

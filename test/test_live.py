@@ -823,3 +823,79 @@ def test_the_live_node_without_foxglove_sdk_says_how_to_install_it_without_a_tra
     text = res.stdout + res.stderr
     assert 'foxglove-sdk' in text and 'pip install' in text, text
     assert 'Traceback' not in text, text
+
+
+# ---------------------------------------------------------------------- /tf_static
+def _tf_static(c: Client) -> list[tuple[str, str, tuple, tuple, tuple]]:
+    """The transforms of the latest /tf_static message a client got: (parent, child,
+    translation [m], rotation (x, y, z, w), stamp (sec, nanosec))."""
+    from tf2_msgs.msg import TFMessage
+
+    msg = deserialize_message(c.messages['/tf_static'][-1][1], TFMessage)
+    return [(t.header.frame_id, t.child_frame_id,
+             (t.transform.translation.x, t.transform.translation.y,
+              t.transform.translation.z),
+             (t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z,
+              t.transform.rotation.w), (t.header.stamp.sec, t.header.stamp.nanosec))
+            for t in msg.transforms]
+
+
+def test_the_live_node_serves_the_fixed_joints_on_tf_static_latched(ros, launch):
+    """/tf_static as foxglove_bridge relays robot_state_publisher's: a ``cdr`` channel of
+    ``tf2_msgs/msg/TFMessage`` (``ros2msg`` schema) with the URDF's fixed joint ``link2 ->
+    tool0`` at (l2, 0, 0) m, identity rotation, stamped 0; latched, so a client that
+    subscribes later gets it too. A ROS publisher's robot_description of another robot
+    brings its fixed joints (``rpy`` as a quaternion, 1e-12); one that is no URDF is
+    reported and changes nothing."""
+    from arm_common.node import latched_qos
+
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    live = launch('live', params={'port': 0})
+    url = ros.wait_for(lambda: re.search(r'serving (ws://\S+)', live.output()), timeout=60,
+                       what='the live node to serve').group(1)
+    expected = [('link2', 'tool0', (float(ARM.link_lengths[1]), 0.0, 0.0),
+                 (0.0, 0.0, 0.0, 1.0), (0, 0))]
+    clients = []
+    try:
+        for _ in range(2):  # the second subscribes after the message went out
+            client = ThreadedClient(url)
+            clients.append(client)
+            c = client.c
+            ros.wait_for(lambda: '/tf_static' in c.channels, what='the /tf_static channel')
+            ch = c.channels['/tf_static']
+            assert (ch['encoding'], ch['schemaEncoding'], ch['schemaName']) == (
+                'cdr', 'ros2msg', 'tf2_msgs/msg/TFMessage'), ch
+            assert ch['schema'] == schema_text('tf2_msgs/msg/TFMessage')
+            client.run(c.subscribe('/tf_static'))
+            ros.wait_for(lambda: c.messages.get('/tf_static'), what='the static transforms')
+            got = _tf_static(c)
+            assert [g[:2] + g[4:] for g in got] == [e[:2] + e[4:] for e in expected]
+            assert np.allclose(got[0][2], expected[0][2], atol=1e-12)
+            assert np.allclose(got[0][3], expected[0][3], atol=1e-12)
+
+        # Another robot's description from ROS: its fixed joints replace them.
+        c = clients[0].c
+        descriptions = ros.publisher(String, 'robot_description', latched_qos())
+        other = ('<robot name="other"><link name="base_link"/><link name="tip"/>'
+                 '<joint name="tip_joint" type="fixed"><parent link="base_link"/>'
+                 '<child link="tip"/><origin xyz="0.1 0.2 0.3" rpy="0 0 1.5707963267948966"/>'
+                 '</joint></robot>')
+        descriptions.publish(String(data=other))
+        ros.wait_for(lambda: _tf_static(c)[0][1] == 'tip', timeout=30,
+                     what='the other robot\'s static transforms')
+        ((parent, child, xyz, rot, stamp),) = _tf_static(c)
+        assert (parent, child, stamp) == ('base_link', 'tip', (0, 0))
+        assert np.allclose(xyz, (0.1, 0.2, 0.3), atol=1e-12)
+        assert np.allclose(rot, (0.0, 0.0, math.sqrt(0.5), math.sqrt(0.5)), atol=1e-12)
+        sent = len(c.messages['/tf_static'])
+
+        # No URDF: reported, the last transforms stay (nothing new is sent).
+        descriptions.publish(String(data='not a URDF'))
+        ros.wait_for(lambda: any('no fixed joints read from it' in s.message for s in
+                                 statuses(diags, '/live', 'unreadable_robot_description')),
+                     timeout=30, what='the unreadable description reported')
+        assert len(c.messages['/tf_static']) == sent
+        assert live.alive(), live.output()[-3000:]
+    finally:
+        for client in clients:
+            client.close()

@@ -294,3 +294,48 @@ def _parameters_services_graph_and_rosout(ros, client: JsClient, events: list, l
     # The node logs the call after answering it.
     ros.wait_for(lambda: 'client 1: called /simulator/reset: {"success": true' in live.output(),
                  timeout=10, what="the node's log of the call")
+
+
+def test_a_stock_foxglove_client_gets_the_arms_fixed_joints_on_tf_static(ros, launch,
+                                                                          js_client):
+    """``FoxgloveClient`` sees /tf_static advertised as a ROS channel (``cdr``,
+    ``tf2_msgs/msg/TFMessage``), subscribes after the node sent it and still gets it
+    (latched): link2 -> tool0 at (l2, 0, 0) m of config/arm.yaml's arm, stamped 0."""
+    import math
+
+    import yaml
+    from tf2_msgs.msg import TFMessage
+
+    robot = yaml.safe_load(CONFIG.read_text())['/**']['ros__parameters']
+    l2 = float(robot['link_lengths'][1])
+    live = launch('live', params_file=CONFIG, params={'port': 0})
+    url = ros.wait_for(lambda: re.search(r'serving (ws://\S+)', live.output()), timeout=30,
+                       what='the live node to serve').group(1)
+    client = JsClient(js_client, url)
+    try:
+        def channel() -> dict | None:
+            return next((c for e in client.of('advertise') for c in e['channels']
+                         if c['topic'] == '/tf_static'), None)
+
+        ros.wait_for(lambda: channel() or client.proc.poll() is not None, timeout=20,
+                     what='the /tf_static channel')
+        ch = channel()
+        assert ch is not None, (client.events, client.stderr())
+        assert (ch['encoding'], ch['schemaEncoding'], ch['schemaName']) == (
+            'cdr', 'ros2msg', 'tf2_msgs/msg/TFMessage')
+        client.send(cmd='subscribe', topic='/tf_static')
+
+        def static() -> list[TFMessage]:
+            return [deserialize_message(base64.b64decode(e['data']), TFMessage)
+                    for e in client.of('message') if e['topic'] == '/tf_static']
+
+        ros.wait_for(static, timeout=10, what='the latched /tf_static message')
+        (t,) = static()[-1].transforms
+        assert (t.header.frame_id, t.child_frame_id) == ('link2', 'tool0')
+        assert (t.header.stamp.sec, t.header.stamp.nanosec) == (0, 0)
+        tr, rot = t.transform.translation, t.transform.rotation
+        assert math.dist((tr.x, tr.y, tr.z), (l2, 0.0, 0.0)) < 1e-12
+        assert math.dist((rot.x, rot.y, rot.z, rot.w), (0.0, 0.0, 0.0, 1.0)) < 1e-12
+    finally:
+        client.close()
+    assert live.alive(), live.output()[-3000:]
