@@ -17,8 +17,15 @@ a publisher comes or goes (DDS "message lost" events cover those where DDS sees 
 
 A publisher that appears while the recorder records (a late topic, or a node started
 later) publishes from number 1 on, and what it sends before the recorder's subscription
-is matched to it never arrives (a volatile publisher does not keep it): the number of the
-first message received from it says how many that was (:func:`missed_before_first`).
+has matched it never arrives. DDS matches each side on its own: the publisher's side can
+match the recorder's subscription (so it sends, and a publisher waiting for the match goes
+ahead) before the recorder's side has matched the publisher, and the subscription drops
+data from a writer it does not know yet. Once it matches, the reliable protocol sends again
+only what the publisher still keeps (its history depth: 10 by default, 10 ms at 1 kHz), so
+a window of milliseconds to seconds (measured up to 1.5 s under load) loses the rest. The
+number of the first message received says exactly how many messages the publisher sent
+before it (:func:`before_first`): lost, if the publisher appeared while the recorder
+recorded; else an *unrecorded start* (it may have sent them before the recording began).
 """
 
 from __future__ import annotations
@@ -93,3 +100,20 @@ def missed_before_first(seq: int, publishers: int, appeared_while_recording: boo
     if seq <= 1 or publishers != 1 or not appeared_while_recording:
         return 0
     return seq - 1
+
+
+def before_first(seq: int, publishers: int, appeared_while_recording: bool
+                 ) -> tuple[int, int]:
+    """The messages a topic's publisher sent before the first one the recorder received
+    from it, as ``(lost, unrecorded_start)``; at most one of the two is not 0.
+
+    ``seq``, ``publishers`` and ``appeared_while_recording`` as for
+    :func:`missed_before_first`. All ``seq - 1`` messages are missing from the bag: they
+    are ``lost`` when the publisher appeared while the recorder recorded, else an
+    ``unrecorded_start`` (sent before the first recorded one, before or during the
+    recording: which, the recorder cannot tell). With several publishers (whose number is
+    it?) or none left in the graph, both are 0.
+    """
+    if seq <= 1 or publishers != 1:
+        return 0, 0
+    return (seq - 1, 0) if appeared_while_recording else (0, seq - 1)

@@ -24,12 +24,17 @@ chunk and data CRCs on). What it does about loss, in the order a message meets i
   count the rest. Losses are reported per topic on /diagnostics (``recorder: lost``), in
   ``metadata.yaml`` (``custom_data: arm_sim.lost``) and by ``arm-sim analyze``.
 * **A publisher that appears while recording** (a late topic, or a node started later)
-  sends its first messages before the recorder's subscription is matched to it; they
-  never arrive, and no subscription is made fast enough to prevent it. They are counted
-  lost from the number of the first message received (:func:`arm_bag.loss.
-  missed_before_first`), so recorded + counted lost = published, for a publisher first
-  seen :data:`DISCOVERY_SETTLE` s after the recorder started (it then cannot have been
-  there before the recording) while it is its topic's only publisher.
+  can have its first messages miss the bag even when it waits for the match: its side of
+  DDS matches the recorder's subscription (so it sends) before the recorder's side has
+  matched it, which drops what comes from a writer it does not know; the reliable protocol
+  then sends again only what the publisher still keeps (its history depth). No subscription
+  is made fast enough to prevent it. The number of the first message received says how
+  many were sent before it (:func:`arm_bag.loss.before_first`, while the publisher is its
+  topic's only one): counted lost for a publisher first seen :data:`DISCOVERY_SETTLE` s
+  after the recorder started (it cannot have been there before the recording), else
+  counted apart as an *unrecorded start* (``custom_data: arm_sim.unrecorded_start``,
+  ``unrecorded_start <topic>`` on /diagnostics): it may have sent them before the
+  recording. So recorded + lost + unrecorded start = published.
 
 Log time = the recorder's clock at receive (wall-clock system time by default; simulated
 time, the latest ``clock`` received, with ``use_sim_time: true``, as ``ros2 bag record
@@ -70,7 +75,7 @@ from rclpy.qos import (
 )
 from rclpy.subscription import Subscription
 
-from arm_bag.loss import GapCounter, missed_before_first
+from arm_bag.loss import GapCounter, before_first
 from arm_bag.msgdefs import MessageDefinitionError, QosProfile, qos_yaml, schema_text, type_hash
 from arm_bag.topics import DEFAULT_TOPICS, KNOWN_TOPICS, LATCHED
 from arm_bag.writer import BagWriteError, BagWriter
@@ -92,8 +97,9 @@ SUMMARY = '''
 Records topics into a rosbag2 bag directory (metadata.yaml + <name>_0.mcap, MCAP profile
 ros2, CDR messages, ros2msg schemas, chunk CRCs) without deserialising them; output is
 required. The suite's topics are subscribed at start with their publishers' QoS; others
-when a publisher appears (graph events); what a publisher appearing after the first 5 s
-sent before the recorder got its first message is counted lost. Log time = receive time
+when a publisher appears (graph events); what a publisher sent before the first message
+received from it is counted: lost if it appeared after the first 5 s, else as an
+unrecorded start (metadata.yaml custom_data arm_sim.unrecorded_start). Log time = receive time
 on the recorder's clock: wall-clock system time, or simulated time (the latest clock
 message) with use_sim_time:=true. Messages lost before
 the recorder (publisher sequence gaps, DDS loss events) are counted per topic on
@@ -187,13 +193,18 @@ class _Topic:
     received: int = 0
     gap_lost: int = 0                 # from publisher sequence gaps
     event_lost: int = 0               # from DDS message-lost events
+    first_seq: int = 0                # publication number of the first message received
+    start_note: str = ''              # what became of the messages before it (logged)
+    unrecorded_start: int = 0         # sent before it, perhaps before the recording
     publishers: int = 0               # of the right type, at the last graph look
     gaps: GapCounter = field(default_factory=GapCounter)
     wrong: set[str] = field(default_factory=set)
 
     @property
     def lost(self) -> int:
-        return max(self.gap_lost, self.event_lost)
+        # DDS's events count some of the same messages as the numbers do, the unrecorded
+        # start among them (its publisher's first messages never arrived): never twice.
+        return max(self.gap_lost, self.event_lost - self.unrecorded_start)
 
 
 class RecorderNode(Node):
@@ -280,18 +291,18 @@ class RecorderNode(Node):
                 f'{SETTLED}: a publisher that appears from now on is counted from its '
                 'first message (what it sent before the recorder got it is lost)')
 
-    def _missed_before_first(self, rec: _Topic, seq: int) -> int:
-        """How many messages the one publisher of ``rec`` sent before the first one the
-        recorder received (``seq``), if it appeared while the recorder recorded."""
+    def _before_first(self, rec: _Topic, seq: int) -> tuple[int, int]:
+        """(lost, unrecorded start): the messages the one publisher of ``rec`` sent before
+        the first one the recorder received (``seq``), lost if it appeared while the
+        recorder recorded (:func:`arm_bag.loss.before_first`)."""
         if seq <= 1:
-            return 0
+            return 0, 0
         right = [i for i in self.get_publishers_info_by_topic(rec.name)
                  if i.topic_type == rec.type_name]
         if len(right) != 1:
-            return 0
+            return 0, 0
         seen = self.first_seen.setdefault(bytes(right[0].endpoint_gid), time.monotonic())
-        return missed_before_first(seq, len(right),
-                                   seen - self.started >= DISCOVERY_SETTLE)
+        return before_first(seq, len(right), seen - self.started >= DISCOVERY_SETTLE)
 
     def _choose_type(self, name: str, infos) -> str | None:
         types = sorted({i.topic_type for i in infos},
@@ -369,7 +380,7 @@ class RecorderNode(Node):
         rec.channel = self.writer.add_topic(
             rec.name, rec.type_name, schema_text(rec.type_name),
             qos_yaml(offered_qos([i.qos_profile for i in infos])), thash)
-        self.get_logger().info(f'{FIRST_MESSAGE} {rec.name}')
+        self.get_logger().info(f'{FIRST_MESSAGE} {rec.name}{rec.start_note}')
         return rec.channel
 
     # ------------------------------------------------------------------ data
@@ -400,9 +411,19 @@ class RecorderNode(Node):
         rec.received += 1
         seq = int(info.get('publication_sequence_number') or 0)
         if rec.received == 1:  # its first message: what its publisher sent before it?
-            missed = self._missed_before_first(rec, seq)
+            rec.first_seq = seq
+            missed, unrecorded = self._before_first(rec, seq)
+            if unrecorded:
+                self.writer.count_unrecorded_start(rec.name, unrecorded)
+                self._count_lost(rec, unrecorded=unrecorded)
             if missed:
                 self._count_lost(rec, gap=missed)
+            if missed or unrecorded:
+                rec.start_note = (
+                    f' (number {seq} of its publisher; the {missed or unrecorded} before it '
+                    + ('never arrived: counted lost)' if missed else
+                       'are an unrecorded start: it was there in the first '
+                       f'{DISCOVERY_SETTLE:g} s, so they may precede the recording)'))
         if seq and seq != (rec.gaps.last or -1) + 1:
             # Not the next number: first tell the counter how many publishers DDS has
             # matched right now (a publisher is matched before any of its data arrives).
@@ -422,14 +443,20 @@ class RecorderNode(Node):
     def _lost(self, info, *, rec: _Topic) -> None:
         self._count_lost(rec, event=int(getattr(info, 'total_count_change', 1)))
 
-    def _count_lost(self, rec: _Topic, gap: int = 0, event: int = 0) -> None:
+    def _count_lost(self, rec: _Topic, gap: int = 0, event: int = 0,
+                    unrecorded: int = 0) -> None:
+        """Count ``gap`` messages lost by the numbers, ``event`` by DDS events, and
+        ``unrecorded`` sent before the first one received, not known to be loss (DDS
+        events of those are then not loss either)."""
         before = rec.lost
         rec.gap_lost += gap
         rec.event_lost += event
+        rec.unrecorded_start += unrecorded
         n = rec.lost - before
+        if n != 0:
+            self.writer.set_lost(rec.name, rec.lost)
         if n <= 0:
             return
-        self.writer.count_lost(rec.name, n)
         self.diag.problem('lost', f'{rec.name}: {n} messages lost before reaching the '
                           f'recorder ({rec.lost} on this topic so far)', topic=rec.name,
                           lost=rec.lost, lost_total=self.lost)
@@ -452,7 +479,9 @@ class RecorderNode(Node):
                       buffered=self.writer.pending, lost=lost, dropped=lost,
                       topics=sorted(self.topics),
                       **{f'received {t}': r.received for t, r in self.topics.items()},
-                      **{f'lost {t}': r.lost for t, r in self.topics.items() if r.lost})
+                      **{f'lost {t}': r.lost for t, r in self.topics.items() if r.lost},
+                      **{f'unrecorded_start {t}': r.unrecorded_start
+                         for t, r in self.topics.items() if r.unrecorded_start})
 
     def _fail(self, exc: Exception) -> None:
         if self.stopped:
@@ -493,10 +522,13 @@ class RecorderNode(Node):
             self.get_logger().error(self.failed)
             return
         lost = {t: r.lost for t, r in self.topics.items() if r.lost}
+        start = {t: r.unrecorded_start for t, r in self.topics.items() if r.unrecorded_start}
         self.get_logger().info(
             f'bag closed: {self.writer.message_count} messages written of '
             f'{self.received} received ({self.lost} lost before the recorder'
-            f'{": " + json.dumps(lost) if lost else ""}) in {self.writer.directory}')
+            f'{": " + json.dumps(lost) if lost else ""}'
+            f'{"; unrecorded start: " + json.dumps(start) if start else ""}) in '
+            f'{self.writer.directory}')
 
     def destroy_node(self) -> None:
         self.close()

@@ -15,6 +15,9 @@ KNOWN_TOPICS = {
     'arm_controller/reference': 'sensor_msgs/msg/JointState',
     'arm_controller/joint_trajectory': 'trajectory_msgs/msg/JointTrajectory',
     'arm_controller/trajectory_status': 'diagnostic_msgs/msg/DiagnosticStatus',
+    # As joint_trajectory_controller's: reference, feedback, error and output per command
+    # (the controller publishes it only while someone subscribes: the recorder does).
+    'arm_controller/controller_state': 'control_msgs/msg/JointTrajectoryControllerState',
     'goal_pose': 'geometry_msgs/msg/PoseStamped',
     'planner/path': 'nav_msgs/msg/Path',
     'markers': 'visualization_msgs/msg/MarkerArray',

@@ -31,7 +31,9 @@ Durability:
 
 Messages can be counted as lost (:meth:`BagWriter.count_lost`); the counts per topic are
 written to ``metadata.yaml`` (``custom_data``: ``arm_sim.lost`` as JSON) so every reader
-of the bag sees them.
+of the bag sees them; so are the messages a topic's publisher sent before the first one
+in the bag when they are not known to be lost (:meth:`BagWriter.count_unrecorded_start`,
+``arm_sim.unrecorded_start``).
 """
 
 from __future__ import annotations
@@ -58,6 +60,9 @@ from arm_bag.bagfile import (
 )
 
 LIBRARY = 'arm_sim arm_bag (mcap python)'
+#: custom_data key: per topic (JSON), the messages its publisher sent before the first one
+#: in the bag, maybe before the recording began (see arm_bag.loss.before_first).
+UNRECORDED_START_KEY = 'arm_sim.unrecorded_start'
 COMPRESSIONS = ('none', 'zstd', 'lz4')
 _COMPRESSION = {'none': CompressionType.NONE, 'zstd': CompressionType.ZSTD,
                 'lz4': CompressionType.LZ4}
@@ -184,6 +189,7 @@ class BagWriter:
         self._by_channel: dict[int, Topic] = {}
         self._schemas: dict[str, int] = {}
         self.lost: dict[str, int] = {}
+        self.unrecorded_start: dict[str, int] = {}
         self.message_count = 0           # written to the file
         self._pending = 0                # in the open chunk
         self.start_ns: int | None = None
@@ -281,6 +287,19 @@ class BagWriter:
         if n > 0:
             self.lost[topic] = self.lost.get(topic, 0) + int(n)
 
+    def set_lost(self, topic: str, n: int) -> None:
+        """Set the count of ``topic``'s messages lost before they reached the bag."""
+        if n > 0:
+            self.lost[topic] = int(n)
+        else:
+            self.lost.pop(topic, None)
+
+    def count_unrecorded_start(self, topic: str, n: int) -> None:
+        """Count ``n`` messages of ``topic`` its publisher sent before the first one in the
+        bag, perhaps before the recording began (not known to be lost)."""
+        if n > 0:
+            self.unrecorded_start[topic] = self.unrecorded_start.get(topic, 0) + int(n)
+
     def flush_chunk(self) -> None:
         """Write the open chunk (if any) and its message indexes to the file."""
         before = self._file.pos
@@ -306,7 +325,10 @@ class BagWriter:
             base={'ros_distro': self.ros_distro},
             custom={RECORDING_KEY: RECORDING_CLOSED if self.closed else RECORDING_OPEN,
                     **({LOST_KEY: json.dumps(self.lost, sort_keys=True)}
-                       if self.lost else {})})
+                       if self.lost else {}),
+                    **({UNRECORDED_START_KEY: json.dumps(self.unrecorded_start,
+                                                         sort_keys=True)}
+                       if self.unrecorded_start else {})})
 
     def write_metadata_yaml(self) -> None:
         """Atomically (re)write ``metadata.yaml``; errors are raised as BagWriteError."""
