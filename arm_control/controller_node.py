@@ -33,6 +33,7 @@ from arm_common.node import (
     ConfigError,
     Diagnostics,
     clock_in_namespace,
+    clock_refusal,
     declare_parameters,
     latched_qos,
     on_parameter_changes,
@@ -325,6 +326,11 @@ class ControllerNode(Node):
         if not (np.isfinite(q).all() and np.isfinite(qd).all()):
             self.diag.problem('rejected_state', f'joint_states has non-finite values: '
                               f'q={q.tolist()} qd={qd.tolist()}')
+            return
+        bad_stamp = clock_refusal(msg.header.stamp.sec, msg.header.stamp.nanosec)
+        if bad_stamp:  # no simulated time: it would read as a jump (e.g. back to -5 s)
+            self.diag.problem('rejected_state', f'joint_states refused: header.stamp: '
+                              f'{bad_stamp}')
             return
         self.latest = (_stamp(msg), q, qd)
         self.latest_wall = time.monotonic()

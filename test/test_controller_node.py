@@ -384,3 +384,30 @@ def test_real_time_starts_exactly_at_the_initial_state_when_the_controller_is_la
     ros.wait_for(lambda: stamp(states[-1]) >= 1.0, timeout=30, what='1 s of control')
     q = np.array([m.position for m in states])
     assert np.abs(q - Q0).max() < 1e-6, 'held where it started: it never dropped'
+
+
+def test_a_state_stamped_before_time_began_is_refused_not_taken_for_a_jump(ros, launch):
+    """A joint state stamped sec = -5 (or nanosec >= 1e9) is no simulated time: refused as
+    rejected_state, not read as simulated time going back (a time jump that would drop the
+    trajectory); the next good state is answered as before."""
+    from std_msgs.msg import Float64MultiArray
+    launch('controller', params_file=CONFIG)
+    commands = ros.collect(Float64MultiArray, 'effort_controller/commands')
+    diags = ros.collect(DiagnosticArray, '/diagnostics')
+    pub = ros.publisher(JointState, 'joint_states')
+
+    def state(sec: int, nanosec: int = 0) -> JointState:
+        m = JointState(name=JOINTS, position=Q0, velocity=[0.0, 0.0])
+        m.header.stamp.sec, m.header.stamp.nanosec = sec, nanosec
+        return m
+
+    ros.wait_for(lambda: pub.publish(state(1)) or commands, what='an answer to t = 1 s')
+    for bad in (state(-5), state(1, 2_000_000_000)):
+        n = len(problems(diags, '/controller', 'rejected_state'))
+        ros.wait_for(lambda: pub.publish(bad)
+                     or len(problems(diags, '/controller', 'rejected_state')) > n,
+                     what='the bad stamp refused')
+    n = len(commands)
+    ros.wait_for(lambda: pub.publish(state(1, 10_000_000)) or len(commands) > n,
+                 what='an answer to the next good state')
+    assert not problems(diags, '/controller', 'time_jump'), 'no jump was taken'
