@@ -279,20 +279,19 @@ def test_check_grades_the_example_and_its_sign_flipped_copy(tmp_path):
 
 
 @pytest.mark.process
-@pytest.mark.timeout(900)
-def test_a_topic_only_controller_passes_with_the_same_report_each_time(tmp_path):
+@pytest.mark.timeout(600)
+def test_a_topic_only_controller_gets_every_trajectory_and_passes(tmp_path):
     """A third party's controller that takes arm_controller/joint_trajectory itself, gives
-    no verdicts and tags no command: it gets every goal's trajectory (the planner waits
-    for its subscription), and its run does not depend on the machine's load: two runs
-    give the same results.json (simulated-time figures only)."""
-    docs = []
-    for name in ('topic_only', 'topic_only_again'):
-        res, doc, xml = _check(tmp_path, name, '--', sys.executable, str(TOPIC_ONLY))
-        assert res.returncode == 0, res.stdout + res.stderr
-        assert doc['passed'] and len(doc['scenarios']) == 6
-        assert not xml.findall('.//failure')
-        docs.append((tmp_path / name / 'results.json').read_text())
-    assert docs[0] == docs[1]
+    no verdicts and tags no command (test/check_controllers/topic_only.py) gets every
+    goal's trajectory (the planner waits for its subscription, and the harness sends it
+    once more when its own publisher has matched it): the lecture suite passes. (Which
+    state it first answers with a new trajectory depends on its own executor's order of
+    the trajectory and the next state: its figures may differ between runs in the 4th
+    significant digit, docs/limitations.md.)"""
+    res, doc, xml = _check(tmp_path, 'topic_only', '--', sys.executable, str(TOPIC_ONLY))
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert doc['passed'] and len(doc['scenarios']) == 6
+    assert not xml.findall('.//failure')
 
 
 #: A scenario per behaviour of bad.py (``bad.py scenario`` takes its behaviour from the
@@ -403,3 +402,193 @@ def test_check_grades_arm_sims_own_controller_and_plain_pd(tmp_path):
     dev = next(m for m in fast['metrics'] if m['name'] == 'line_deviation')
     assert not fast['passed'] and not dev['passed'] and dev['value'] > 5 * dev['threshold']
     assert 'line_deviation' in xml.find('.//failure').get('message')
+
+
+#: A controller that first starts a grandchild which escapes its process group and
+#: session (fork, setsid, fork again: orphaned, it ignores SIGINT, as a daemon would) and
+#: writes the grandchild's pid to the file argv[1], then becomes the example controller
+#: (bad.py's 'good').
+ESCAPING = f'''import os, signal, sys
+if os.fork() == 0:
+    os.setsid()
+    if os.fork() == 0:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        with open(sys.argv[1] + '.tmp', 'w') as f:
+            f.write(str(os.getpid()))
+        os.rename(sys.argv[1] + '.tmp', sys.argv[1])
+        while True:
+            signal.pause()
+    os._exit(0)
+os.wait()
+os.execv(sys.executable, [sys.executable, {str(EXAMPLE)!r}])
+'''
+
+
+def _escaping_suite(tmp_path: Path, name: str, settle: float = 2.0) -> tuple[Path, Path]:
+    """A one-scenario suite (a short regulation) named ``name``, and the controller above."""
+    import yaml
+
+    suite = tmp_path / f'{name}.yaml'
+    suite.write_text(yaml.safe_dump({'name': name, 'scenarios': [{
+        'name': name, 'start_tip': [0.5, 1.2], 'settle': settle, 'budget': 60.0,
+        'goals': [{'tip': [0.55, 1.15]}], 'thresholds': {'settling_time': 5.0}}]}))
+    ctl = tmp_path / 'escaping_controller.py'
+    ctl.write_text(ESCAPING)
+    return suite, ctl
+
+
+def _scenario_processes(scenario: str) -> list[int]:
+    """Live processes of this session started for ``scenario`` (its keeper, the controller,
+    whatever they started: ARM_SIM_CHECK_SCENARIO=<scenario> in their environment)."""
+    from conftest import ours, proc_dirs
+
+    mark = f'ARM_SIM_CHECK_SCENARIO={scenario}'.encode()
+    found = []
+    for proc in proc_dirs():
+        try:
+            if (mark in (proc / 'environ').read_bytes().split(b'\0') and ours(proc)
+                    and (proc / 'stat').read_text().rsplit(')', 1)[1].split()[0] != 'Z'):
+                found.append(int(proc.name))
+        except (OSError, IndexError):
+            continue
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0] != 'Z'
+    except (OSError, IndexError):
+        return False
+
+
+def _poll(condition, timeout: float, what: str):
+    """Poll ``condition()`` (every 50 ms) until truthy; fail after ``timeout`` s."""
+    import time
+
+    end = time.monotonic() + timeout
+    while True:
+        value = condition()
+        if value:
+            return value
+        if time.monotonic() > end:
+            pytest.fail(f'timed out after {timeout:g} s waiting for {what}')
+        time.sleep(0.05)
+
+
+@pytest.mark.process
+@pytest.mark.timeout(300)
+def test_what_a_controller_starts_in_a_session_of_its_own_ends_with_its_scenario(tmp_path):
+    """A grandchild the controller started with setsid() (out of its process group, its
+    parent gone, SIGINT ignored) is stopped with the scenario: it cannot answer a later
+    scenario or check on the domain."""
+    from conftest import node_processes
+
+    suite, ctl = _escaping_suite(tmp_path, 'keeper_escape')
+    pid_file = tmp_path / 'grandchild.pid'
+    before = node_processes()
+    res, doc, _ = _check(tmp_path, 'escape', '--suite', str(suite), '--', sys.executable,
+                         str(ctl), str(pid_file))
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert doc['passed'], doc
+    grandchild = int(pid_file.read_text())  # it did start, in a session of its own
+    assert not _alive(grandchild)
+    assert _scenario_processes('keeper_escape') == []
+    assert node_processes() - before == set()
+    assert 'warning: ROS domain' not in res.stdout, res.stdout
+
+
+@pytest.mark.process
+@pytest.mark.timeout(300)
+def test_a_sigkilled_check_leaves_no_process_and_no_shared_memory_behind(tmp_path):
+    """SIGKILL of ``arm-sim check`` mid-scenario: the controller, its setsid'ed grandchild
+    (the keeper stops them) and the suite's nodes (the kernel tells them their parent
+    died) all exit within seconds, and no new Fast DDS file stays in /dev/shm once they
+    are gone (the keeper removes what the killed check could not)."""
+    import signal
+
+    from conftest import node_processes, own_shm_files, shm_files, shm_holders
+
+    suite, ctl = _escaping_suite(tmp_path, 'keeper_sigkill', settle=20.0)
+    pid_file = tmp_path / 'grandchild.pid'
+    before = node_processes()
+    check = subprocess.Popen([sys.executable, '-m', 'arm_sim.cli', 'check', '--report',
+                              str(tmp_path / 'killed'), '--suite', str(suite), '--',
+                              sys.executable, str(ctl), str(pid_file)],
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        # Mid-scenario: the suite's nodes up, the controller and its grandchild running,
+        # the first goal sent (its progress line).
+        lines: list[str] = []
+        while not any('goal 1:' in line for line in lines):
+            line = check.stdout.readline()  # type: ignore[union-attr]
+            assert line, 'the check ended early:\n' + ''.join(lines)
+            lines.append(line)
+        assert pid_file.is_file(), ''.join(lines)
+        nodes = node_processes() - before
+        controller = _scenario_processes('keeper_sigkill')
+        grandchild = int(pid_file.read_text())
+        assert len(nodes) >= 4 and len(controller) >= 3 and _alive(grandchild), \
+            (nodes, controller)
+        held = shm_holders(session_only=True) - own_shm_files()
+        assert held, 'the check holds no Fast DDS files?'
+    finally:
+        check.send_signal(signal.SIGKILL)
+        check.wait(30)
+        check.stdout.close()  # type: ignore[union-attr]
+    _poll(lambda: not _alive(grandchild), 15.0, f'the setsid grandchild {grandchild} to exit')
+    _poll(lambda: not _scenario_processes('keeper_sigkill'), 15.0,
+          'the controller and its keeper to exit')
+    _poll(lambda: not (node_processes() - before), 15.0, "the suite's nodes to exit")
+
+    # The check's own files: those its processes held just before the kill (other test
+    # sessions on the machine come and go meanwhile). Each must go once they are gone.
+    def stale() -> set[str]:
+        return (held & shm_files()) - shm_holders()
+
+    try:
+        _poll(lambda: not stale(), 10.0, 'no new stale Fast DDS file in /dev/shm')
+    except BaseException:
+        print('STALE', sorted(stale()), sorted(held))
+        raise
+
+
+@pytest.mark.process
+@pytest.mark.timeout(120)
+def test_a_leftover_commands_publisher_on_the_domain_is_named_and_fails_the_scenario(
+        tmp_path):
+    """A node of another run still publishing effort_controller/commands on the domain
+    (it would drive the arm): one warning line names it, and the scenario fails with that
+    reason before starting anything."""
+    import signal
+
+    leftover = tmp_path / 'leftover.py'
+    leftover.write_text(
+        'import ctypes, signal, rclpy\n'
+        'from std_msgs.msg import Float64MultiArray\n'
+        'ctypes.CDLL(None).prctl(1, signal.SIGTERM, 0, 0, 0)\n'
+        'rclpy.init()\n'
+        "node = rclpy.create_node('ct_controller')\n"
+        "node.create_publisher(Float64MultiArray, 'effort_controller/commands', 10)\n"
+        "print('up', flush=True)\n"
+        'try:\n    rclpy.spin(node)\nexcept Exception:\n    pass\n')
+    suite, _ = _escaping_suite(tmp_path, 'keeper_leftover')
+    other = subprocess.Popen([sys.executable, str(leftover)], stdout=subprocess.PIPE,
+                             text=True)
+    try:
+        assert other.stdout.readline() == 'up\n'  # type: ignore[union-attr]
+        res, doc, xml = _check(tmp_path, 'leftover', '--suite', str(suite), '--', 'true')
+    finally:
+        other.send_signal(signal.SIGINT)
+        other.wait(30)
+        other.stdout.close()  # type: ignore[union-attr]
+    assert res.returncode == 1, res.stdout + res.stderr
+    warnings = [line.strip() for line in res.stdout.splitlines() if 'warning:' in line]
+    assert len(warnings) == 1, res.stdout
+    assert warnings[0].startswith('warning: ROS domain ') and \
+        ' already has /ct_controller publishing effort_controller/commands' in warnings[0]
+    assert "Its commands would drive this check's arm" in warnings[0]
+    reason = doc['scenarios'][0]['reason']
+    assert reason.endswith('already has /ct_controller publishing effort_controller/commands'
+                           " (left over from another run?): its commands would drive this "
+                           "check's arm; stop it"), reason
+    assert xml.find('.//failure') is not None
