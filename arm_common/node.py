@@ -313,8 +313,11 @@ class Diagnostics:
     Every array is stamped with the wall clock (system time), whatever ``use_sim_time``
     says: diagnostics report *when* something happened to the person or tool watching.
     The simulated time is the key ``sim_time`` [s] (from ``sim_time()``, when it returns a
-    value): in the summary the time of the report, in a kind's status the time of its
-    last occurrence, whose further key-values it carries too.
+    value): in the summary the time its figures are of (``sim_time()`` when :meth:`set`
+    last gave them, however much later the periodic report goes out; before any
+    :meth:`set`, the time of the report), in a kind's status the time of its last
+    occurrence, whose further key-values it carries too. So every figure in a status is of
+    the simulated time the status says.
     """
 
     def __init__(self, node: Node, period: float = 1.0,
@@ -325,6 +328,7 @@ class Diagnostics:
         self.level = 'OK'
         self.message = 'starting'
         self.values: dict[str, Any] = {}
+        self._summary_time: dict[str, str] | None = None  # sim_time of the last set()
         self.tasks: dict[str, _Task] = {}
         self.throttle = Throttle(period)
         self.sim_time = sim_time
@@ -338,9 +342,11 @@ class Diagnostics:
         return {kind: task.count for kind, task in self.tasks.items()}
 
     def set(self, level: str, message: str, **values: Any) -> None:
-        """Set the summary (published with the next periodic report)."""
+        """Set the summary (published with the next periodic report), its figures of the
+        simulated time now: the report carries this ``sim_time``, not the one at publish."""
         self.level, self.message = level, message
         self.values.update(values)
+        self._summary_time = self._sim_time()
 
     def problem(self, kind: str, reason: str, level: str = 'WARN', *, log: bool = True,
                 **values: Any) -> None:
@@ -369,8 +375,9 @@ class Diagnostics:
 
     def publish(self) -> None:
         """The periodic report: the summary and every kind's status in one array."""
+        at = self._sim_time() if self._summary_time is None else self._summary_time
         statuses = [self._status(SUMMARY_TASK, self.level, self.message,
-                                 {**self._sim_time(), **self.values})]
+                                 {**at, **self.values})]
         for kind, task in self.tasks.items():
             statuses.append(self._task_status(kind, task))
             task.fresh = False

@@ -33,8 +33,9 @@ How the simulator uses it (per physics step starting at ``t``)
    ``(t, t + dt)``, and by :func:`engage_brakes` where :meth:`Disturbances.locked` gains a
    joint;
 2. the motor torque is ``torque_scale(t) * clip(command)`` (a torque loss acts on what the
-   drive delivers, after the effort limits), plus ``external_torque(t, q, model)`` --
-   an external load, never clipped;
+   drive delivers, after the effort limits), plus the joint torques of :meth:`Disturbances.
+   loads` -- an external load, never clipped; its tip force ``F`` enters the dynamics
+   (:class:`~arm_dynamics.integrate.TipLoaded`): ``J(q)^T F`` at every RK4 stage;
 3. braked joints stay put: :func:`braked_forward_dynamics` gives their acceleration zero
    (and the other joints' dynamics with those joints held);
 4. an effort command arriving at ``t`` with :meth:`Disturbances.commands_dropped` is lost
@@ -47,8 +48,10 @@ Modelled, and not
 -----------------
 * A tip force acts at the tool point (the arm's ``forward_kinematics`` point), in the plane,
   components in the base frame, fixed in direction while the arm moves; its joint torque is
-  ``J(q)^T F`` (virtual work), ``J`` the tip Jacobian at the configuration passed (per RK4
-  stage when the simulator evaluates it there, else held over the step like the command).
+  ``J(q)^T F`` (virtual work), ``J`` the tip Jacobian at the arm's configuration: the
+  simulator evaluates it at every RK4 stage (:class:`~arm_dynamics.integrate.TipLoaded`),
+  so it follows the arm within a physics step, exact to the integrator's order (the motor
+  command is held).
   No moment at the tip, no force on an intermediate link, no contact.
 * An impulse is an instant change of momentum, ``D(q) (qd+ - qd-) = J^T P`` (tip, ``P`` in
   N s) or ``= P`` (joints, N m s); positions do not jump.
@@ -133,6 +136,9 @@ class ArmModel(Protocol):
 
     def inverse_dynamics(self, q, qd, qdd) -> np.ndarray:
         """tau [N m], (n,)."""
+
+    def forward_dynamics(self, q, qd, tau) -> np.ndarray:
+        """qdd [rad/s^2], (n,)."""
 
 
 def _is_int(value: object) -> bool:
@@ -427,15 +433,25 @@ class Disturbances:
             self._arrays = (start, end, tip, joint)
         return self._arrays
 
-    def external_torque(self, t_ns: int, q, model: ArmModel) -> np.ndarray:
-        """(n,) N m: the joint torque of the steps and pulses active over the physics step
-        starting at ``t_ns``: ``J(q)^T F`` of the tip forces' sum ``F`` plus the joint
-        torques. Zeros when none is (the model is then not asked)."""
+    def loads(self, t_ns: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """The steps and pulses active over the physics step starting at ``t_ns``: the sum
+        of their joint torques (n,) [N m] (constant over the step) and the sum ``F`` of
+        their tip forces (2,) [N, base frame], None when it is zero. ``F``'s joint torque
+        ``J(q)^T F`` depends on the configuration: integrate it inside the right-hand side
+        (:class:`~arm_dynamics.integrate.TipLoaded`), not held at the step's start."""
         start, end, tip, joint = self._push_arrays()
         on = (start <= t_ns) & (t_ns < end)
         tau = joint[on].sum(axis=0) if on.any() else np.zeros(self.n)
         force = tip[on].sum(axis=0)
-        if force.any():
+        return tau, (force if force.any() else None)
+
+    def external_torque(self, t_ns: int, q, model: ArmModel) -> np.ndarray:
+        """(n,) N m: the joint torque of the steps and pulses active over the physics step
+        starting at ``t_ns``, at the configuration ``q``: ``J(q)^T F`` of the tip forces'
+        sum ``F`` plus the joint torques. Zeros when none is (the model is then not
+        asked)."""
+        tau, force = self.loads(t_ns)
+        if force is not None:
             tau = tau + np.asarray(model.jacobian(q), dtype=float).T @ force
         return tau
 

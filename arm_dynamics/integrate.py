@@ -2,6 +2,8 @@
 
 * :func:`rk4_step` -- one classic Runge-Kutta 4 step of ``qdd = fd(q, qd, tau)`` with the
   torque held over the step (what the simulator node does every physics step).
+* :class:`TipLoaded` -- a model with a constant tip force (base frame) in its right-hand
+  side: the force's joint torque ``J(q)^T F`` evaluated at every RK4 stage.
 * :func:`simulate` -- run a model under any torque law over time and return arrays; the
   ``'solve_ivp'`` method is the accuracy reference (scipy's DOP853 at tight tolerances).
 
@@ -13,7 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -48,6 +50,60 @@ def rk4_step(fd: Callable, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, dt: f
     a4 = fd(q + dt * v3, v4, tau)
     return (q + dt / 6.0 * (qd + 2.0 * (v2 + v3) + v4),
             qd + dt / 6.0 * (a1 + 2.0 * (a2 + a3) + a4))
+
+
+class TipLoaded:
+    """``model`` with a constant tip force ``force`` (2,) [N, base frame] in its dynamics.
+
+    The force's joint torque ``J(q)^T F`` is evaluated wherever the dynamics are: every
+    RK4 stage of :meth:`step`, every stage and event re-integration of
+    :func:`~arm_dynamics.friction.friction_step` (which asks :meth:`step` and
+    :meth:`inverse_dynamics`), so a push follows the arm within a physics step to the
+    integrator's order (held at the step's start it would be first order). Like gravity,
+    the load is part of the bias torque: :meth:`inverse_dynamics` subtracts it,
+    :meth:`forward_dynamics` adds it to ``tau``; the mass matrix and the Jacobian are the
+    arm's. Single states (n,) only.
+    """
+
+    def __init__(self, model: Any, force) -> None:
+        self.model = model
+        self.force = np.asarray(force, dtype=float).reshape(2)
+
+    @property
+    def n_dof(self) -> int:
+        return self.model.n_dof
+
+    def load(self, q) -> np.ndarray:
+        """``J(q)^T F`` [N m], (n,)."""
+        return np.asarray(self.model.jacobian(q), dtype=float).T @ self.force
+
+    def jacobian(self, q) -> np.ndarray:
+        """The arm's tip Jacobian [m/rad], (2, n)."""
+        return self.model.jacobian(q)
+
+    def mass_matrix(self, q) -> np.ndarray:
+        """The arm's D(q) [kg m^2], (n, n)."""
+        return self.model.mass_matrix(q)
+
+    def forward_dynamics(self, q, qd, tau) -> np.ndarray:
+        """qdd [rad/s^2] under ``tau`` [N m] plus the tip force's ``J(q)^T F``."""
+        return np.asarray(self.model.forward_dynamics(
+            q, qd, np.asarray(tau, dtype=float) + self.load(q)), dtype=float)
+
+    def inverse_dynamics(self, q, qd, qdd) -> np.ndarray:
+        """The torque [N m] the joints must add to the tip force for ``qdd``."""
+        return np.asarray(self.model.inverse_dynamics(q, qd, qdd), dtype=float) - self.load(q)
+
+    def step(self, q, qd, tau, dt: float, n_steps: int = 1
+             ) -> tuple[np.ndarray, np.ndarray]:
+        """``n_steps`` RK4 steps of ``dt`` [s], ``tau`` [N m] held, ``J(q)^T F`` per
+        stage; (q [rad], qd [rad/s]). Raises ValueError on a non-finite state (the arm's
+        own checks)."""
+        q, qd = np.asarray(q, dtype=float), np.asarray(qd, dtype=float)
+        tau = np.asarray(tau, dtype=float)
+        for _ in range(n_steps):
+            q, qd = rk4_step(self.forward_dynamics, q, qd, tau, dt)
+        return q, qd
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ import numpy as np
 
 from arm_dynamics.disturbance import ArmModel, Disturbances, Event, Push, apply_impulse
 from arm_dynamics.friction import JointFriction, friction_step
-from arm_dynamics.integrate import Model
+from arm_dynamics.integrate import Model, TipLoaded
 from arm_dynamics.limits import JointLimits
 from arm_dynamics.models import geared_link, robot_model
 from arm_dynamics.sensors import ActuationDelay, SensorModel
@@ -255,9 +255,11 @@ class SimulatorCore:
     def _integrate_real(self, t0_ns: int) -> tuple[np.ndarray, np.ndarray]:
         """The period from ``t0_ns`` one physics step at a time: impulses at its start,
         the delivered torque (a torque loss scales the clipped command; the external load
-        is added, never clipped), brakes and friction (:func:`~arm_dynamics.friction.
-        friction_step`), hard stops. Sets :attr:`applied` (the mean delivered motor torque)
-        and :attr:`external` (the mean external torque)."""
+        is added, never clipped; a tip force's ``J(q)^T F`` is part of the dynamics,
+        :class:`~arm_dynamics.integrate.TipLoaded`, evaluated at every RK4 stage), brakes
+        and friction (:func:`~arm_dynamics.friction.friction_step`), hard stops. Sets
+        :attr:`applied` (the mean delivered motor torque) and :attr:`external` (the mean
+        over the steps of the external torque at each step's start) [N m]."""
         model, dist, dt = cast(ArmModel, self.model), self.disturbances, self.dt
         friction = self.friction or self._frictionless
         q, qd, stuck = self.q, self.qd, self.stuck
@@ -270,6 +272,7 @@ class SimulatorCore:
                 t = t0_ns + k * step
                 tau = self.applied
                 locked = None
+                plant: ArmModel = model
                 if dist is not None:
                     for p in dist.impulses(t, t + step):
                         qd = apply_impulse(model, q, qd, p.kind, p.array)
@@ -277,10 +280,14 @@ class SimulatorCore:
                     locked = dist.locked(t)
                     tau = tau * dist.torque_scale(t)
                     delivered += tau
-                    load = dist.external_torque(t, q, model)
-                    external += load
+                    load, force = dist.loads(t)
+                    if force is not None:  # J(q)^T F inside the dynamics: every RK4 stage
+                        plant = TipLoaded(model, force)
+                        external += load + plant.load(q)  # reported: at the step's start
+                    else:
+                        external += load
                     tau = tau + load
-                q, qd, stuck, w = friction_step(model, q, qd, tau, dt, stuck, friction,
+                q, qd, stuck, w = friction_step(plant, q, qd, tau, dt, stuck, friction,
                                                 locked)
                 work += w
                 if self.hard_stops and self.joint_limits is not None:

@@ -17,6 +17,7 @@ from arm_control.laws import law_torque
 from arm_dynamics import TwoLinkArm
 from arm_dynamics.disturbance import Disturbances
 from arm_dynamics.friction import JointFriction
+from arm_dynamics.integrate import rk4_step
 from arm_dynamics.robot import resolve_robot
 from arm_dynamics.simulation import SimulatorCore
 
@@ -129,9 +130,10 @@ def test_the_real_path_with_nothing_active_is_the_ideal_path_bit_for_bit():
 # ---------------------------------------------------------------------- pushes
 def test_a_pulse_adds_exactly_jacobian_transpose_force_over_its_physics_steps():
     """A 30 N tip pulse from 0.105 s for 0.05 s (mid control period, on the step grid):
-    the core's states equal a hand loop of model.step that adds J(q)^T F over exactly the
-    steps in [0.105, 0.155) s, to 1e-12; the true effort is the motor's plus the mean push
-    torque of the period."""
+    the core's states equal a hand loop of RK4 steps whose right-hand side adds J(q)^T F
+    (at each stage's q) over exactly the steps in [0.105, 0.155) s, to 1e-12; the true
+    effort is the motor's plus the mean push torque of the period (J^T F at each step's
+    start)."""
     arm = TwoLinkArm()
     force = np.array([0.0, -30.0])
     dist = schedule({'pushes': [{'at': 0.105, 'tip_force': force.tolist(), 'shape': 'pulse',
@@ -145,9 +147,13 @@ def test_a_pulse_adds_exactly_jacobian_transpose_force_over_its_physics_steps():
         load_sum = np.zeros(2)
         for j in range(10):
             t = k * PERIOD_NS + j * STEP_NS
-            load = arm.jacobian(q).T @ force if 105_000_000 <= t < 155_000_000 else 0 * force
-            load_sum += load
-            q, qd = arm.step(q, qd, command + load, 1e-3, 1)
+            on = 105_000_000 <= t < 155_000_000
+            load_sum += arm.jacobian(q).T @ force if on else 0 * force
+
+            def fd(q_, qd_, tau_, on=on):
+                return arm.forward_dynamics(q_, qd_, tau_ + (arm.jacobian(q_).T @ force
+                                                             if on else 0.0))
+            q, qd = rk4_step(fd, q, qd, command, 1e-3)
         np.testing.assert_allclose(c.q, q, rtol=0, atol=1e-12)
         np.testing.assert_allclose(c.qd, qd, rtol=0, atol=1e-12)
         assert c.true_view().effort == pytest.approx(command + load_sum / 10, abs=1e-12)
