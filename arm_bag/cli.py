@@ -83,6 +83,20 @@ def add_analyze_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
+def with_recover_advice(message: str, path: str) -> str:
+    """``message`` (a damage error ending in the in-place ``arm-sim bag recover PATH``
+    hint) with the recovery that works for ``path`` instead
+    (:func:`arm_bag.recover.recover_advice`: ``--output DIR`` when the bag's directory
+    cannot be written, e.g. on read-only storage)."""
+    from arm_bag.bagfile import recover_hint
+    from arm_bag.recover import recover_advice
+
+    in_place = recover_hint(path)
+    if in_place not in message:
+        return message
+    return message.replace(in_place, recover_advice(path))
+
+
 def analyze_one(path: str) -> tuple[str, object]:
     """``('ok', report)`` or ``(kind, message)`` for one bag, kind ``unreadable`` or
     ``nothing``: the exceptions as values, so a Dask worker can return them too."""
@@ -92,7 +106,7 @@ def analyze_one(path: str) -> tuple[str, object]:
     try:
         return 'ok', analyze(path)
     except BagError as exc:
-        return 'unreadable', reason(exc)
+        return 'unreadable', with_recover_advice(reason(exc), path)
     except NothingToAnalyse as exc:
         return 'nothing', f'nothing to analyse: {reason(exc)}'
     except (OSError, MemoryError) as exc:
@@ -239,7 +253,12 @@ def run_recover(args: argparse.Namespace) -> int:
         print(f'arm-sim bag recover: {reason(exc)}', file=sys.stderr)
         return EXIT_UNREADABLE
     except (OSError, MemoryError) as exc:
-        print(f'arm-sim bag recover: {args.bag}: {reason(exc)}', file=sys.stderr)
+        from arm_bag.bagfile import recover_hint
+        from arm_bag.recover import recover_advice
+
+        advice = recover_advice(args.bag) if args.output is None else ''
+        hint = f'; {advice}' if advice and advice != recover_hint(args.bag) else ''
+        print(f'arm-sim bag recover: {args.bag}: {reason(exc)}{hint}', file=sys.stderr)
         return EXIT_UNREADABLE
     written = ', '.join(report.files) or 'nothing rewritten (already intact)'
     print(f'{report.output}: {report.summary()}; written: {written}')

@@ -58,11 +58,12 @@ from arm_bag.bagfile import (
     path_stat,
     read_metadata_text,
     recording_state,
+    recover_hint,
     regular_file,
 )
 
 __all__ = ['RECORDING_CLOSED', 'RECORDING_KEY', 'RECORDING_OPEN', 'RecoveryError',
-           'RecoveryReport', 'is_locked', 'recording_state', 'recover_bag']
+           'RecoveryReport', 'is_locked', 'recording_state', 'recover_advice', 'recover_bag']
 
 LIBRARY = 'arm_sim arm_bag recover'
 ROSBAG2_RECORD = 'rosbag2'
@@ -496,6 +497,26 @@ def _remove_leftovers(bag_dir: Path, files: list[Path]) -> None:
              *(_tmp_of(f).name for f in files)]
     for name in names:
         (bag_dir / name).unlink(missing_ok=True)
+
+
+def recover_advice(path: str | os.PathLike, writable: bool | None = None) -> str:
+    """The recovery that works for the bag at ``path``, as the sentence that ends a damage
+    error: in place (:func:`arm_bag.bagfile.recover_hint`) when the directory an in-place
+    recovery writes (the bag directory, or an ``.mcap`` file's) can be written, otherwise
+    ``arm-sim bag recover PATH --output DIR`` to a new directory on writable storage
+    (read-only storage: an in-place recovery cannot work there).
+
+    ``writable``: whether that directory can be written; None asks ``os.access`` (which
+    sees a read-only mount even for root, though not a permission root ignores)."""
+    p = Path(path)
+    where = p if p.is_dir() else p.parent
+    if writable is None:
+        writable = os.access(where, os.W_OK)
+    if writable:
+        return recover_hint(path)
+    return (f'{where} cannot be written (read-only?), so recover to a new directory on '
+            f'writable storage: `arm-sim bag recover {path} --output DIR` keeps what is '
+            'intact in DIR')
 
 
 def recover_bag(path: str | os.PathLike, output: str | os.PathLike | None = None

@@ -33,8 +33,9 @@ extra ``foxglove``, imported only when a bridge is made) and the computations it
   ``services``, ``connectionGraph``), as foxglove_bridge offers them: parameters named
   ``/<node>.<parameter>`` (:func:`param_name`), their values mapped both ways between
   ``rcl_interfaces/msg/ParameterValue`` and Foxglove's (:func:`foxglove_value`,
-  :func:`ros_value`); ROS services advertised with their ``.srv`` halves as ``ros2msg``
-  schemas (:func:`service_schemas`), called in ``cdr`` (or ``json``); the graph as
+  :func:`ros_value`); ROS services advertised by name and type (no per-service encoding,
+  so a call may be in ``cdr`` or ``json`` and is answered in the same; their ``.srv`` must
+  be installed, :func:`service_schemas`); the graph as
   :class:`Graph` (:func:`build_graph`), sent when it changed. The SDK asks from its threads;
   each request (:class:`ParamGet`, :class:`ParamSet`, :class:`ServiceCall`) is handed to
   the node through :meth:`Bridge.poll` and the SDK's thread waits for the answer (at most
@@ -1026,10 +1027,11 @@ class Bridge:
 
     def set_services(self, services: Mapping[str, str]) -> list[str]:
         """Advertise ROS services ``services`` (name -> type) to clients and withdraw the
-        others, as foxglove_bridge does: each with its type's request and response schemas
-        (``ros2msg``, called in ``cdr``). Returns why some could not be (their type's
-        definition not installed, or the SDK's reason), once per service."""
-        from foxglove import MessageSchema, Schema, Service, ServiceSchema
+        others, as foxglove_bridge does: each by name and type, called in any of the
+        server's encodings (``cdr`` or ``json``) and answered in the call's. Returns why
+        some could not be (their type's definition not installed, or the SDK's reason),
+        once per service."""
+        from foxglove import Service, ServiceSchema
 
         gone = [n for n, t in self.services.items() if services.get(n) != t]
         if gone:
@@ -1042,18 +1044,18 @@ class Bridge:
             if name in self.services or name in self._unservable:
                 continue
             try:
-                req, resp = service_schemas(type_name)
+                service_schemas(type_name)  # its definition is installed: callable
             except MessageDefinitionError as exc:
                 self._unservable.add(name)
                 problems.append(f'not offering service {name}: {exc}')
                 continue
-            base = type_name
-            schema = ServiceSchema(
-                name=type_name,
-                request=MessageSchema(encoding='cdr', schema=Schema(
-                    name=f'{base}_Request', encoding='ros2msg', data=req.encode())),
-                response=MessageSchema(encoding='cdr', schema=Schema(
-                    name=f'{base}_Response', encoding='ros2msg', data=resp.encode())))
+            # No per-service encoding: foxglove-sdk 0.30.3 refuses ("Unsupported encoding")
+            # a call in any encoding but the one a service declares, and labels every
+            # response with the declared response encoding. Undeclared, a call may use any
+            # of the server's supportedEncodings (cdr, json; the protocol's rule) and is
+            # answered in the request's. The price: the advertisement carries the type
+            # name but empty requestSchema/responseSchema (the SDK sends no text then).
+            schema = ServiceSchema(name=type_name)
             handler = functools.partial(self._call_service, name, type_name)
             new.append((name, type_name, Service(name, schema=schema, handler=handler)))
         if new:

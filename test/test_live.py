@@ -46,8 +46,10 @@ from arm_sim.live import (
     PARAMETER_STRING,
     PARAMETER_STRING_ARRAY,
     PUSH_CHANNEL,
+    Bridge,
     Graph,
     RosParam,
+    ServiceCall,
     Stamped,
     accepted_topic,
     arm_transforms,
@@ -467,6 +469,78 @@ def test_service_requests_and_responses_in_json():
     doc = message_to_json(state)
     assert doc['header']['frame_id'] == 'base_link' and doc['position'] == [0.5]
     assert json.dumps(doc)
+
+
+def test_a_service_call_in_json_is_answered_in_json_and_cdr_still_in_cdr():
+    """Both of the server's supportedEncodings reach the node and come back labelled as
+    called (a json call once got "Unsupported encoding" from the SDK: the advertisement
+    declared cdr). The node's side is played here by a thread answering the Bridge's
+    ServiceCall as :meth:`LiveNode._service_job` does, in the call's encoding."""
+    from std_srvs.srv import SetBool
+
+    bridge = Bridge(port=0)
+    calls: list[tuple[str, bool]] = []
+    stop = threading.Event()
+
+    def node() -> None:
+        while not stop.is_set():
+            for request in bridge.poll():
+                if not isinstance(request, ServiceCall):
+                    continue
+                if request.encoding == 'json':
+                    req = fill_message(SetBool.Request(), json.loads(request.payload))
+                else:
+                    req = deserialize_message(request.payload, SetBool.Request)
+                calls.append((request.encoding, req.data))
+                resp = SetBool.Response(success=True, message=f'held: {req.data}')
+                request.answer(json.dumps(message_to_json(resp)).encode()
+                               if request.encoding == 'json' else serialize_message(resp))
+            stop.wait(0.01)
+
+    async def call(ws, sid: int, call_id: int, encoding: str, payload: bytes):
+        await ws.send(struct.pack('<BIII', 2, sid, call_id, len(encoding))
+                      + encoding.encode() + payload)
+        while True:
+            m = await asyncio.wait_for(ws.recv(), 15)
+            if isinstance(m, str):
+                doc = json.loads(m)
+                assert doc['op'] != 'serviceCallFailure', doc
+                continue
+            if m[0] == 3:
+                got_sid, got_call, n = struct.unpack_from('<III', m, 1)
+                assert (got_sid, got_call) == (sid, call_id)
+                return m[13:13 + n].decode(), bytes(m[13 + n:])
+
+    async def session() -> None:
+        async with websockets.connect(bridge.url, subprotocols=SUBPROTOCOLS) as ws:
+            sid = None
+            while sid is None:
+                doc = json.loads(await asyncio.wait_for(ws.recv(), 10))
+                if doc['op'] == 'serverInfo':
+                    assert doc['supportedEncodings'] == ['cdr', 'json']
+                if doc['op'] == 'advertiseServices':
+                    (svc,) = doc['services']
+                    assert (svc['name'], svc['type']) == ('/simulator/hold',
+                                                          'std_srvs/srv/SetBool')
+                    sid = svc['id']
+            encoding, data = await call(ws, sid, 1, 'json', b'{"data": true}')
+            assert encoding == 'json'
+            assert json.loads(data) == {'success': True, 'message': 'held: True'}
+            encoding, data = await call(ws, sid, 2, 'cdr',
+                                        serialize_message(SetBool.Request(data=False)))
+            assert encoding == 'cdr'
+            assert deserialize_message(data, SetBool.Response).message == 'held: False'
+
+    thread = threading.Thread(target=node, daemon=True)
+    thread.start()
+    try:
+        assert bridge.set_services({'/simulator/hold': 'std_srvs/srv/SetBool'}) == []
+        asyncio.run(asyncio.wait_for(session(), 60))
+    finally:
+        stop.set()
+        thread.join(5)
+        bridge.stop()
+    assert calls == [('json', True), ('cdr', False)]
 
 
 def test_the_connection_graph_is_sorted_merged_and_compares_by_content():

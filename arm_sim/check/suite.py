@@ -2,7 +2,8 @@
 
 The format is documented in docs/check.md and by example in config/checks/lecture.yaml (the
 default suite). Every error names the file, the entry (``scenarios[2] (line_fast)``), the
-key and the bad value: :class:`SuiteFileError`.
+key and the bad value: :class:`SuiteFileError`. A scenario's ``simulator`` values are checked
+against the simulator node's own parameter specs (importing that module, and so rclpy, then).
 """
 
 from __future__ import annotations
@@ -259,6 +260,8 @@ def _scenario(item: object, label: str, base: dict, base_thresholds: dict,
         if key not in SIMULATOR_KEYS:
             raise SuiteFileError(f'{label}: simulator.{key}: not settable here (one of '
                                  f"{', '.join(SIMULATOR_KEYS)})")
+    if simulator:
+        _simulator_values(simulator, label)
     disturbances = item.get('disturbances')
     if disturbances is not None:
         disturbances = _disturbances(disturbances, label)
@@ -368,6 +371,36 @@ def _disturbances(data: object, label: str) -> dict:
         raise SuiteFileError(str(exc)) from None
     assert isinstance(data, dict)
     return data
+
+
+def _simulator_values(simulator: dict, label: str) -> None:
+    """Check a scenario's ``simulator`` values against the simulator's own parameter specs
+    (:data:`arm_dynamics.simulator_node.SIM_PARAMS`: type, range, one value per joint of
+    the :data:`N_JOINTS`-joint arm, relations), as the node checks them at start-up: a
+    value it would refuse is a SuiteFileError naming the scenario, key and value, never a
+    failed scenario. Imports the node module (and so rclpy) only when a scenario sets one."""
+    from arm_common.params import relation_reasons
+    from arm_dynamics.simulator_node import SIM_PARAMS
+
+    specs = {s.name: s for s in SIM_PARAMS if s.name in SIMULATOR_KEYS}
+    values = {}
+    for key, value in simulator.items():
+        spec = specs[key]
+        declared = spec.as_declared(value)
+        reason = spec.check(declared)
+        if reason is None and spec.per_joint:
+            reason = spec.joint_count_reason(declared, N_JOINTS)
+        if reason:
+            raise SuiteFileError(f'{label}: simulator.{key}: {value!r:.60} refused by the '
+                                 f'simulator: {reason}')
+        values[key] = declared
+    resolved = {**{s.name: s.default_for(N_JOINTS) if s.per_joint else s.default
+                   for s in specs.values()}, **values}
+    for key in values:
+        reasons = relation_reasons([specs[key]], resolved)
+        if reasons:
+            raise SuiteFileError(f'{label}: simulator.{key}: {simulator[key]!r:.60} refused '
+                                 f'by the simulator: {reasons[0]}')
 
 
 def _number(value: object, where: str) -> float:
