@@ -507,11 +507,12 @@ def recover_advice(path: str | os.PathLike, writable: bool | None = None) -> str
     (read-only storage: an in-place recovery cannot work there).
 
     ``writable``: whether that directory can be written; None asks ``os.access`` (which
-    sees a read-only mount even for root, though not a permission root ignores)."""
+    sees a read-only mount even for root, though not a permission root ignores) of a
+    directory that exists (for one that does not, the in-place hint stands)."""
     p = Path(path)
     where = p if p.is_dir() else p.parent
-    if writable is None:
-        writable = os.access(where, os.W_OK)
+    if writable is None:  # a path that is not there is no question of storage
+        writable = not where.exists() or os.access(where, os.W_OK)
     if writable:
         return recover_hint(path)
     return (f'{where} cannot be written (read-only?), so recover to a new directory on '
