@@ -30,6 +30,7 @@ setup() {
   # control_msgs and tf2_msgs: no wheel ships them; build them into the venv from the
   # ROS 2 Jazzy definitions in interfaces/ (docs/interfaces.md). About a minute the first
   # time; a no-op (0.2 s) when up to date or when a real ROS 2 install provides them.
+  # (A pip-installed arm_sim runs the same script with `arm-sim interfaces`.)
   "$VENV/bin/python" interfaces/build_interfaces.py \
     || { echo "[setup] failed: building control_msgs/tf2_msgs (interfaces/)" >&2; exit 1; }
 }

@@ -6,11 +6,24 @@ pip (plain venv): the same entry points become console scripts on PATH.
 Python dependency versions are pinned in ``constraints.txt`` only.
 """
 
+import os
 from glob import glob
 
 from setuptools import find_packages, setup
 
 PACKAGE = 'arm_sim'
+
+
+def interfaces_data() -> list[tuple[str, list[str]]]:
+    """interfaces/ (build_interfaces.py and the control_msgs/tf2_msgs definitions) as data
+    files in share/arm_sim/interfaces/: `arm-sim interfaces` builds them from an installed
+    wheel too (docs/interfaces.md)."""
+    by_dir: dict[str, list[str]] = {}
+    for path in sorted(glob('interfaces/**', recursive=True)):
+        if os.path.isfile(path) and '__pycache__' not in path:
+            by_dir.setdefault(os.path.dirname(path), []).append(path)
+    return [(f'share/{PACKAGE}/{d}', files) for d, files in by_dir.items()]
+
 
 setup(
     name=PACKAGE,
@@ -28,12 +41,15 @@ setup(
         ('share/' + PACKAGE + '/config/foxglove', glob('config/foxglove/*.json')),
         ('share/' + PACKAGE + '/config/plotjuggler', glob('config/plotjuggler/*.xml')),
         ('share/' + PACKAGE + '/launch', glob('launch/*.launch.py')),
+        *interfaces_data(),
     ],
     install_requires=['setuptools'],
     extras_require={
         # Versions live in constraints.txt; these are the names only.
+        # catkin-pkg: rosidl_adapter (`arm-sim interfaces`) imports it; its wheel does not
+        # declare it.
         'ros': ['ros-jazzy-rclpy', 'ros-jazzy-common-interfaces',
-                'ros-jazzy-rmw-fastrtps-cpp', 'ros-jazzy-std-srvs'],
+                'ros-jazzy-rmw-fastrtps-cpp', 'ros-jazzy-std-srvs', 'catkin-pkg'],
         'core': ['numpy', 'scipy', 'mcap', 'pyyaml', 'matplotlib', 'zstandard', 'lz4'],
         'test': ['pytest', 'pytest-timeout', 'ruff', 'mypy', 'colcon-common-extensions',
                  'rosbags', 'mcap-ros2-support', 'dask', 'distributed', 'yourdfpy', 'pin',
@@ -50,15 +66,18 @@ setup(
     license='Apache-2.0',
     python_requires='>=3.10',
     entry_points={
+        # Every node starts through arm_sim.node_entry:main (the node is the executable's
+        # name): it turns a missing control_msgs or tf2_msgs (pip builds no interfaces) into
+        # one line naming `arm-sim interfaces`.
         'console_scripts': [
-            'simulator = arm_dynamics.simulator_node:main',
-            'controller = arm_control.controller_node:main',
-            'planner = arm_planner.planner_node:main',
-            'recorder = arm_bag.recorder_node:main',
-            'composed = arm_sim.composed:main',
-            'live = arm_sim.live_node:main',
-            'visualizer = arm_sim.visualizer_node:main',
-            'check_reference = arm_sim.check.reference_node:main',
+            'simulator = arm_sim.node_entry:main',
+            'controller = arm_sim.node_entry:main',
+            'planner = arm_sim.node_entry:main',
+            'recorder = arm_sim.node_entry:main',
+            'composed = arm_sim.node_entry:main',
+            'live = arm_sim.node_entry:main',
+            'visualizer = arm_sim.node_entry:main',
+            'check_reference = arm_sim.node_entry:main',
             'arm-sim = arm_sim.cli:main',
         ],
         # arm_sim.testing: the arm_check fixture (opt-in; docs/check.md)

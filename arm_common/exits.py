@@ -45,10 +45,13 @@ EXIT_CODES: tuple[ExitCode, ...] = (
              'done: the demo ran, the goal was reached, every bag analysed, every sweep '
              'scenario ran, every check scenario passed; a node stopped by Ctrl-C or '
              'SIGTERM'),
-    ExitCode('EXIT_ERROR', EXIT_ERROR, 'demo, bringup, goal, sweep, check, recorder',
+    ExitCode('EXIT_ERROR', EXIT_ERROR,
+             'demo, bringup, goal, sweep, check, interfaces, recorder, every node',
              'failed, the one line on stderr says why: a node of the suite exited or did '
              'not start, an output directory exists, a sweep run or output failed, a check '
-             'scenario failed, the recorder could not write its bag'),
+             'scenario failed, the recorder could not write its bag, the interface '
+             'packages are not built (pip install: run `arm-sim interfaces`) or could not '
+             'be built'),
     ExitCode('EXIT_USAGE', EXIT_USAGE, 'every command and node',
              'usage: a bad option, argument, spec, suite or parameters file, an output '
              'path that cannot be used, a ROS domain out of range or held by another run; '

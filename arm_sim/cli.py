@@ -539,6 +539,9 @@ def build_parser() -> argparse.ArgumentParser:
     from arm_sim.urdf_cli import add_urdf_parser
 
     add_urdf_parser(sub)
+    from arm_sim.interfaces_cli import add_interfaces_parser
+
+    add_interfaces_parser(sub)  # after demo and bringup: it adds their pre-flight check
     from arm_sim.check.cli import PARSER, add_check_arguments
 
     add_check_arguments(sub.add_parser('check', **PARSER)).set_defaults(func=cmd_check)
