@@ -348,7 +348,9 @@ class ScenarioRun(Demo):
         # volatile trajectory published before a subscription is matched never reaches it,
         # and a controller that gives no verdicts cannot say it missed one.
         takers = self._trajectory_takers(c)
-        self._start('planner', wait_for_nodes=['check_reference', *takers])
+        # ... and the recorder: the bag must hold the trajectory (it marks the segments);
+        # the planner now starts after the recorder's start-up window.
+        self._start('planner', wait_for_nodes=['recorder', 'check_reference', *takers])
         for node, topic in needed:
             self._wait(functools.partial(c.subscribed, topic, node),
                        f'the {node} to subscribe {topic}')
