@@ -279,6 +279,14 @@ _SHM_MUTEX = re.compile(r'^sem\.(fastrtps|fastdds)_port(\d{1,5})_mutex$')
 #: How old an orphaned port mutex must be to be removed: a port being created has one
 #: for a moment before its files.
 MUTEX_AGE = 60.0  # s
+#: A port segment ``fastrtps_port<N>`` without any lock file: its listener closed (and
+#: removed its lock) while a process that had opened the port to write to it was killed,
+#: so Fast DDS's count of the port's users never reaches 0 and nobody removes it (what a
+#: SIGKILLed ``arm-sim check`` leaves). Removed once unmapped, unopened and this old
+#: (its mtime: the segment's creation; mapped writes do not change it): a port being
+#: created is mapped by its creator at once.
+_SHM_PORT = re.compile(r'^(fastrtps|fastdds)_port\d{1,5}$')
+LOCKLESS_AGE = 5.0  # s
 
 
 def shm_in_use(shm_dir: Path = SHM_DIR) -> set[str]:
@@ -329,7 +337,8 @@ def remove_stale_shm(shm_dir: Path = SHM_DIR) -> list[str]:
     open any of its files (/proc/*/maps and fd; a process that still talks to a dead port
     maps it, and keeps it). Its files go together: the segment or port, its lock files and
     a port's mutex ``sem.fastrtps_port<N>_mutex``, the locks held by us while they are
-    removed. A port mutex left without its port goes once it is :data:`MUTEX_AGE` s old
+    removed. A port left without any lock file goes once it is :data:`LOCKLESS_AGE` s old
+    and unused. A port mutex left without its port goes once it is :data:`MUTEX_AGE` s old
     and unmapped. Files of other users and anything not Fast DDS's are left alone."""
     try:
         names = set(os.listdir(shm_dir))
@@ -337,7 +346,8 @@ def remove_stale_shm(shm_dir: Path = SHM_DIR) -> list[str]:
         return []
     locks = sorted(n for n in names if _SHM_LOCK.match(n))
     mutexes = [n for n in names if _SHM_MUTEX.match(n)]
-    if not locks and not mutexes:
+    ports = sorted(n for n in names if _SHM_PORT.match(n))
+    if not locks and not mutexes and not ports:
         return []
     used = shm_in_use(shm_dir)
     removed: list[str] = []
@@ -373,6 +383,18 @@ def remove_stale_shm(shm_dir: Path = SHM_DIR) -> list[str]:
             for fd in fds:
                 os.close(fd)
     now = time.time()
+    for base in ports:
+        if (f'{base}_el' in names or f'{base}_sl' in names or base in used
+                or base in removed):
+            continue
+        try:
+            if now - (shm_dir / base).stat().st_mtime < LOCKLESS_AGE:
+                continue
+            (shm_dir / base).unlink()
+            removed.append(base)
+        except OSError:
+            continue
+        names.discard(base)  # its mutex, unused, goes below once old enough
     for mutex in mutexes:
         port = mutex[len('sem.'):-len('_mutex')]
         path = shm_dir / mutex

@@ -527,7 +527,7 @@ def test_a_sigkilled_check_leaves_no_process_and_no_shared_memory_behind(tmp_pat
         nodes = node_processes() - before
         controller = _scenario_processes('keeper_sigkill')
         grandchild = int(pid_file.read_text())
-        assert len(nodes) >= 4 and len(controller) >= 3 and _alive(grandchild), \
+        assert len(nodes) >= 4 and len(controller) >= 2 and _alive(grandchild), \
             (nodes, controller)
         held = shm_holders(session_only=True) - own_shm_files()
         assert held, 'the check holds no Fast DDS files?'
@@ -592,3 +592,30 @@ def test_a_leftover_commands_publisher_on_the_domain_is_named_and_fails_the_scen
                            " (left over from another run?): its commands would drive this "
                            "check's arm; stop it"), reason
     assert xml.find('.//failure') is not None
+
+
+def test_a_port_left_without_its_lock_by_a_killed_check_is_removed_once_unused(tmp_path):
+    """What a SIGKILLed check leaves in /dev/shm: ports whose listener closed (removing
+    its lock file) while the killed process still counted as a user. Removed when old
+    and unused; a fresh one (being created) and a mapped one are kept."""
+    import mmap
+    import os
+    import time
+
+    from arm_sim.launcher import LOCKLESS_AGE, remove_stale_shm
+
+    shm = tmp_path.resolve()
+    old, fresh, mapped = 'fastrtps_port7411', 'fastrtps_port7413', 'fastrtps_port7415'
+    for name in (old, fresh, mapped, 'fastrtps_port7417', 'fastrtps_port7417_el'):
+        (shm / name).write_bytes(b'\0' * 64)
+    then = time.time() - 2 * LOCKLESS_AGE
+    for name in (old, mapped):
+        os.utime(shm / name, (then, then))
+    with open(shm / mapped, 'r+b') as f:  # a live process still maps this port
+        view = mmap.mmap(f.fileno(), 64)
+    try:
+        removed = remove_stale_shm(shm)
+    finally:
+        view.close()
+    assert old in removed and fresh not in removed and mapped not in removed
+    assert (shm / fresh).exists() and (shm / mapped).exists()

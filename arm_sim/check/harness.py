@@ -12,10 +12,14 @@ next, and the sensors and pushes (read-only simulator parameters) differ per sce
 A controller that does not do its job never hangs the check: no command, a command with
 NaN or the wrong number of joints, a controller that exits, a runaway (the simulator's
 ``runaway``/``diverged`` fault on /diagnostics) or a scenario over its wall-clock
-``budget`` ends the scenario at once with that reason. At the scenario's end the
-controller's whole process group is stopped, also when the command itself has exited (a
-child it left must not answer the next scenario); the command sees the scenario's name in
-``ARM_SIM_CHECK_SCENARIO``.
+``budget`` ends the scenario at once with that reason. At the scenario's end everything
+the controller started is stopped, in any session or process group (its keeper,
+:mod:`arm_sim.check.keeper`, does it, also when this process is killed), also when the
+command itself has exited (a child it left must not answer the next scenario); the
+command sees the scenario's name in ``ARM_SIM_CHECK_SCENARIO``. Before the first scenario
+the domain is looked at for nodes of another run (:func:`leftover_nodes`; again before
+each next one while there are some): one warning line names them, and a publisher of
+commands fails the scenario (it would drive the arm).
 
 Built from the demo's pieces (:class:`arm_sim.demo.Demo`: starting the nodes behind the
 recorder's gate, the recorder drain, the pause and refusal checks) and
@@ -24,11 +28,14 @@ recorder's gate, the recorder drain, the pause and refusal checks) and
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import os
+import select
 import signal
 import subprocess
+import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -37,7 +44,6 @@ import numpy as np
 import yaml
 
 from arm_bag.topics import DEFAULT_TOPICS
-from arm_common.process import PARENT_ENV
 from arm_dynamics.simulation import CommandError, validate_command
 from arm_sim.check.grade import ScenarioResult, grade
 from arm_sim.check.suite import PERIOD, Scenario, Suite
@@ -71,60 +77,133 @@ class ScenarioFailed(Exception):
 
 
 class ControllerProcess:
-    """The user's controller: any command, in a session of its own (a ``ros2 run`` or a
-    shell script and its children are stopped together), with the run's ROS domain,
-    localhost-only discovery and the scenario's name (``ARM_SIM_CHECK_SCENARIO``) in its
-    environment, its output in ``log_path``."""
+    """The user's controller: any command, run by a keeper (:mod:`arm_sim.check.keeper`,
+    in a session of its own) with the run's ROS domain, localhost-only discovery and the
+    scenario's name (``ARM_SIM_CHECK_SCENARIO``) in its environment, its output in
+    ``log_path``. Everything the command starts, in any session or process group, stays
+    the keeper's descendant and is stopped with it: by :meth:`stop`, and by the keeper
+    itself when this process dies (SIGKILL included; the kernel's parent-death signal
+    comes when the *thread* that started it ends: start it from the one that outlives
+    it). ``proc`` is the command (its pid, also its process group, and exit code),
+    ``keeper`` the keeper's process."""
 
     name = 'your controller'
+    #: s (wall) for the keeper to start the command and say so.
+    START_WAIT = 30.0
+    #: s (wall) the keeper gets beyond a stop's timeout before it is killed itself.
+    KEEPER_GRACE = 10.0
 
     def __init__(self, command: Sequence[str], domain_id: int, log_path: Path,
                  scenario: str = '') -> None:
         self.log_path = log_path
         env = node_env(domain_id)
-        env[PARENT_ENV] = str(os.getpid())  # honoured by arm_sim nodes (harmless otherwise)
         env[SCENARIO_ENV] = scenario
-        with open(log_path, 'wb') as out:
-            self.proc = subprocess.Popen(list(command), env=env, stdout=out,
-                                         stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                         start_new_session=True)
+        read, write = os.pipe()
+        keeper = [sys.executable, '-m', 'arm_sim.check.keeper', '--parent', str(os.getpid()),
+                  '--status-fd', str(write), '--lifeline', '--', *command]
+        try:
+            with open(log_path, 'wb') as out:
+                self.keeper = subprocess.Popen(keeper, env=env, stdout=out,
+                                               stderr=subprocess.STDOUT,
+                                               stdin=subprocess.PIPE, pass_fds=(write,),
+                                               start_new_session=True)
+        except BaseException:
+            os.close(read)
+            raise
+        finally:
+            os.close(write)
+        self.proc = KeptCommand(self.keeper, read, self.START_WAIT)
         self.stopped = False
 
     def alive(self) -> bool:
         return self.proc.poll() is None
 
     def stop(self, timeout: float = 5.0) -> int:
-        """SIGINT to its process group, then SIGKILL after ``timeout`` s; the exit code of
-        the command. The whole group, also when the command itself has exited already (it
-        crashed, or a script started its controller in the background and returned): what
-        it left running must not answer the next scenario's simulator. Once only."""
+        """Stop the command and everything it started, in any session or process group,
+        also when the command itself has exited already (it crashed, or a script started
+        its controller in the background and returned: what it left running must not
+        answer the next scenario's simulator): SIGINT, then SIGKILL after ``timeout`` s
+        (the keeper does it and reaps them). Returns the command's exit code. Once only."""
         if self.stopped:
-            return self.proc.returncode
-        for sig in (signal.SIGINT, signal.SIGKILL):
-            try:
-                os.killpg(self.proc.pid, sig)
-            except ProcessLookupError:
-                break  # the group is empty
-            if self._wait_group(timeout):
-                break
-        if self.proc.poll() is None:
-            self.proc.wait()
+            return self.proc.wait()
+        try:
+            assert self.keeper.stdin is not None
+            self.keeper.stdin.write(f'stop {timeout:g}\n'.encode())
+            self.keeper.stdin.close()  # the lifeline: its end alone says stop
+        except OSError:  # the keeper is gone already
+            pass
+        try:
+            self.keeper.wait(timeout + self.KEEPER_GRACE)
+        except subprocess.TimeoutExpired:  # never seen: the keeper's own process group
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(self.keeper.pid, signal.SIGKILL)
+            self.keeper.wait()
+        code = self.proc.wait()
         self.stopped = True
-        return self.proc.returncode
-
-    def _wait_group(self, timeout: float) -> bool:
-        """Wait up to ``timeout`` s until every process of the group has exited."""
-        end = time.monotonic() + timeout
-        while True:
-            self.proc.poll()  # reap the command itself (its children: their new parent)
-            if not group_running(self.proc.pid):
-                return True
-            if time.monotonic() > end:
-                return False
-            time.sleep(0.02)
+        return code
 
     def output(self) -> str:
         return self.log_path.read_text(errors='replace')
+
+
+class KeptCommand:
+    """The command a keeper runs, as far as its status pipe ``fd`` tells (``started
+    <pid>``, ``exited <code>``): ``pid`` (its process group too), ``returncode`` (None
+    while it runs; ``-N``: killed by signal N), ``poll()`` and ``wait()`` as
+    :class:`subprocess.Popen` has them."""
+
+    def __init__(self, keeper: subprocess.Popen, fd: int, start_wait: float) -> None:
+        self.keeper = keeper
+        self._fd: int | None = fd
+        self._buf = b''
+        self._pid: int | None = None
+        self._start_wait = start_wait
+        self.returncode: int | None = None
+
+    @property
+    def pid(self) -> int:
+        """The command's pid (the keeper's if it could not start it)."""
+        end = time.monotonic() + self._start_wait
+        while self._pid is None and self._fd is not None and time.monotonic() < end:
+            self._read(0.05)
+        return self._pid if self._pid is not None else self.keeper.pid
+
+    def _read(self, timeout: float) -> None:
+        """Take what the pipe holds, waiting up to ``timeout`` s for something."""
+        if self._fd is None:
+            return
+        ready, _, _ = select.select([self._fd], [], [], timeout)
+        if not ready:
+            return
+        data = os.read(self._fd, 4096)
+        if not data:  # the keeper has exited: the pipe says no more
+            os.close(self._fd)
+            self._fd = None
+            if self.returncode is None:  # it died before the command's end: its code
+                self.returncode = self.keeper.wait()
+            return
+        self._buf += data
+        while b'\n' in self._buf:
+            line, self._buf = self._buf.split(b'\n', 1)
+            word, _, value = line.decode(errors='replace').partition(' ')
+            if word == 'started':
+                self._pid = int(value)
+            elif word == 'exited':
+                self.returncode = int(value)
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            self._read(0.0)
+        return self.returncode
+
+    def wait(self, timeout: float | None = None) -> int:
+        end = math.inf if timeout is None else time.monotonic() + timeout
+        while self.returncode is None:
+            left = end - time.monotonic()
+            if left < 0:
+                raise subprocess.TimeoutExpired(self.keeper.args, timeout or 0.0)
+            self._read(min(left, 1.0))
+        return self.returncode
 
 
 def group_running(pgid: int) -> bool:
@@ -147,6 +226,55 @@ def group_running(pgid: int) -> bool:
         if fields[2] == str(pgid) and fields[0] != 'Z':  # state, ppid, pgrp
             return True
     return False
+
+
+#: s (wall) a fresh node listens to the domain before the first scenario for nodes left
+#: over from another run: discovery on localhost mostly takes 0.1 s, but when the first
+#: exchange is lost (under load) a participant is seen at its next announcement, which
+#: Fast DDS sends every 3 s.
+LEFTOVER_WINDOW = 4.0
+COMMANDS_TOPIC = 'effort_controller/commands'
+
+
+def leftover_nodes(domain_id: int, controller_started: bool = True,
+                   window: float = LEFTOVER_WINDOW) -> dict[str, list[str]]:
+    """Nodes already on ROS domain ``domain_id`` that publish ``effort_controller/commands``
+    or ``joint_states`` or subscribe ``joint_states``, looked for during ``window`` s (wall)
+    before a scenario starts its nodes (:data:`LEFTOVER_WINDOW`): at that moment the check
+    runs none, so any is left over from another run (a controller killed with its check
+    before keepers existed, one started by hand ...) and would take part in the scenario.
+    Keyed by what they do (``'publishing effort_controller/commands'`` ...), node names as
+    ``/namespace/name``.
+    Without ``controller_started`` (a controller started by hand, which stays across
+    scenarios) only ``joint_states`` publishers count."""
+    what = [('publishing', COMMANDS_TOPIC), ('publishing', 'joint_states'),
+            ('subscribing', 'joint_states')]
+    if not controller_started:
+        what = what[1:2]
+    c = SuiteClient(domain_id)
+    try:
+        c.spin_for(window)
+        own = c.node.get_fully_qualified_name()
+        found: dict[str, list[str]] = {}
+        for verb, topic in what:
+            info = (c.node.get_publishers_info_by_topic if verb == 'publishing' else
+                    c.node.get_subscriptions_info_by_topic)(f'/{topic}')
+            names = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in info}
+                           - {own})
+            if names:
+                found[f'{verb} {topic}'] = names
+        return found
+    finally:
+        c.close()
+
+
+def leftover_warning(domain_id: int, found: dict[str, list[str]]) -> str:
+    """The one line that names the nodes :func:`leftover_nodes` found."""
+    listed = '; '.join(f'{", ".join(names)} {what}' for what, names in found.items())
+    harm = ("Its commands would drive this check's arm" if f'publishing {COMMANDS_TOPIC}'
+            in found else "It would take part in this check's scenarios")
+    return (f'warning: ROS domain {domain_id} already has {listed}: left over from another '
+            f'run? {harm}; stop it')
 
 
 def tail(text: str, chars: int = 300) -> str:
@@ -476,6 +604,7 @@ def run_suite(suite: Suite, out: Path, domain_id: int, command: Sequence[str] | 
     """Run every scenario of ``suite`` (each in ``out/<name>/``); progress to ``echo``."""
     results = []
     n = len(suite.scenarios)
+    found: dict[str, list[str]] = {}
     for k, sc in enumerate(suite.scenarios, 1):
         echo(f'[{k}/{n}] {sc.name}: {sc.description}' if sc.description else
              f'[{k}/{n}] {sc.name}')
@@ -484,7 +613,21 @@ def run_suite(suite: Suite, out: Path, domain_id: int, command: Sequence[str] | 
         removed = remove_stale_shm()
         if removed:
             echo(f'    removed {len(removed)} stale Fast DDS shared-memory file(s)')
-        res = ScenarioRun(sc, out / sc.name, domain_id, command, echo).run()
+        # Nodes of another run on this domain would drive or disturb the scenarios: looked
+        # for before the first, and before each next one while there are some (within a
+        # check, what a scenario started is gone when it ends: ControllerProcess).
+        if k == 1 or found:
+            found = leftover_nodes(domain_id, controller_started=command is not None)
+            if found:
+                echo(f'    {leftover_warning(domain_id, found)}')
+        if command and f'publishing {COMMANDS_TOPIC}' in found:
+            res = ScenarioResult(sc.name, sc.description, reason=(
+                f"ROS domain {domain_id} already has "
+                f"{', '.join(found[f'publishing {COMMANDS_TOPIC}'])} publishing "
+                f"{COMMANDS_TOPIC} (left over from another run?): its commands would "
+                f"drive this check's arm; stop it"))
+        else:
+            res = ScenarioRun(sc, out / sc.name, domain_id, command, echo).run()
         verdict = 'pass' if res.passed else 'FAIL: ' + '; '.join(res.failures())
         echo(f'    {verdict}  ({res.wall:.1f} s wall, {res.sim_time:.2f} s simulated)')
         for w in res.warnings:
