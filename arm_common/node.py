@@ -49,6 +49,7 @@ from arm_common.params import (
     walk_ros_args,
 )
 from arm_common.process import watch_parent
+from arm_common.stamps import NS_PER_S, stamp_refusal
 from arm_common.throttle import Throttle
 
 LEVELS = {'OK': DiagnosticStatus.OK, 'WARN': DiagnosticStatus.WARN,
@@ -428,20 +429,13 @@ _GUARDED: weakref.WeakSet[Node] = weakref.WeakSet()
 REJECTED_CLOCK = 'rejected_clock'
 INTERNAL_ERROR = 'internal_error'
 
-NS_PER_S = 1_000_000_000
 
 
 def clock_refusal(sec: int, nanosec: int) -> str | None:
     """Why the time of a rosgraph_msgs/Clock message (``sec`` [s], ``nanosec`` [ns]) is no
-    valid simulated time, or None: ``sec`` negative (simulated time starts at 0; rclpy's
-    TimeSource raises ValueError on it) or ``nanosec`` outside [0, 1e9)
-    (builtin_interfaces/Time: more is a second and belongs in ``sec``; rclpy would carry it
-    over silently)."""
-    if sec < 0:
-        return f'clock is negative (sec = {sec}): simulated time starts at 0'
-    if not 0 <= nanosec < NS_PER_S:
-        return f'clock.nanosec = {nanosec} is outside [0, 1e9)'
-    return None
+    valid simulated time (rclpy's TimeSource raises ValueError on a negative one), or None:
+    :func:`arm_common.stamps.stamp_refusal`, the one rule."""
+    return stamp_refusal(sec, nanosec, 'clock')
 
 
 def guard_messages(node: Node) -> None:

@@ -33,7 +33,6 @@ from arm_common.node import (
     ConfigError,
     Diagnostics,
     clock_in_namespace,
-    clock_refusal,
     declare_parameters,
     latched_qos,
     on_parameter_changes,
@@ -41,6 +40,7 @@ from arm_common.node import (
     steady_clock,
 )
 from arm_common.params import ParamSpec
+from arm_common.stamps import stamp_refusal
 from arm_control import follow
 from arm_control.core import ControllerCore, Step
 from arm_control.laws import GAINS, LAW_TABLE, LAWS, ControlLaw, Gains
@@ -327,10 +327,9 @@ class ControllerNode(Node):
             self.diag.problem('rejected_state', f'joint_states has non-finite values: '
                               f'q={q.tolist()} qd={qd.tolist()}')
             return
-        bad_stamp = clock_refusal(msg.header.stamp.sec, msg.header.stamp.nanosec)
+        bad_stamp = stamp_refusal(msg.header.stamp.sec, msg.header.stamp.nanosec)
         if bad_stamp:  # no simulated time: it would read as a jump (e.g. back to -5 s)
-            self.diag.problem('rejected_state', f'joint_states refused: header.stamp: '
-                              f'{bad_stamp}')
+            self.diag.problem('rejected_state', f'joint_states refused: {bad_stamp}')
             return
         self.latest = (_stamp(msg), q, qd)
         self.latest_wall = time.monotonic()

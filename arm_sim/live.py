@@ -78,6 +78,7 @@ from arm_bag.msgdefs import (
     schema_text,
     share_dirs,
 )
+from arm_common.stamps import NS_PER_S, stamp_refusal  # noqa: F401 (re-exported)
 from arm_dynamics.disturbance import MAX_LOAD
 from arm_dynamics.models import RobotModel
 from arm_dynamics.urdf import link_frames
@@ -110,7 +111,6 @@ CLIENT_ENCODINGS = ('cdr', 'json')
 FRAMES = ('base_link', 'link1', 'link2', 'tool0')
 #: CDR encapsulation header: XCDR1, little endian, no options.
 CDR_HEADER = b'\x00\x01\x00\x00'
-NS_PER_S = 1_000_000_000
 #: How long [s, wall] a client's parameter request waits for the node's answer (the SDK's
 #: thread of that client waits; the node's executor never does).
 PARAM_TIMEOUT = 3.0
@@ -118,8 +118,6 @@ PARAM_TIMEOUT = 3.0
 SERVICE_TIMEOUT = 10.0
 ROSOUT_TOPIC = '/rosout'
 ROSOUT_TYPE = 'rcl_interfaces/msg/Log'
-#: The latest ``builtin_interfaces/Time`` second: ``sec`` is an int32.
-MAX_STAMP_SEC = 2**31 - 1
 
 
 # ---------------------------------------------------------------------- kinematics
@@ -183,25 +181,6 @@ def joint_positions(names: Sequence[str], positions: Sequence[float],
 
 
 # ---------------------------------------------------------------------- validation
-def stamp_refusal(sec: object, nanosec: object, what: str = 'header.stamp') -> str | None:
-    """Why (``sec``, ``nanosec``) is no valid simulated time stamp, or None: both must be
-    integers, ``sec`` in [0, 2^31 - 1] (simulated time starts at 0; builtin_interfaces/Time
-    holds an int32) and ``nanosec`` in [0, 1e9) (more is a second and belongs in ``sec``).
-    ``what`` names the field in the reason."""
-    if isinstance(sec, bool) or not isinstance(sec, int):
-        return f'{what}.sec must be an integer, got {sec!r}'
-    if isinstance(nanosec, bool) or not isinstance(nanosec, int):
-        return f'{what}.nanosec must be an integer, got {nanosec!r}'
-    if sec < 0:
-        return f'{what} is negative (sec = {sec}): simulated time starts at 0'
-    if sec > MAX_STAMP_SEC:
-        return (f'{what}.sec = {sec} overflows builtin_interfaces/Time (an int32: at most '
-                f'{MAX_STAMP_SEC})')
-    if not 0 <= nanosec < NS_PER_S:
-        return f'{what}.nanosec = {nanosec} is outside [0, 1e9)'
-    return None
-
-
 def text_refusal(text: object, what: str) -> str | None:
     """Why ``text`` is no usable string field (a frame id, a name), or None: it must be a
     str without NUL characters (a ROS string ends at its first NUL: 'base_link\\0x' would

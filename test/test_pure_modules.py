@@ -9,7 +9,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PURE_PACKAGES = ('arm_dynamics', 'arm_control', 'arm_planner', 'arm_bag')
 PURE_GLUE = ('arm_common.params', 'arm_sim.launcher', 'arm_common.throttle', 'arm_common.process',
-             'arm_common.cluster',
+             'arm_common.cluster', 'arm_common.stamps',
              'arm_sim.sweep', 'arm_sim.urdf_cli', 'arm_sim.draw', 'arm_sim.live',
              'arm_sim.markers', 'arm_sim.tf', 'arm_common.yamlfile')
 
